@@ -1,0 +1,1 @@
+"""Geometry toolkit: rotations, signed distances, ray casting, ICP, watertight repair."""
