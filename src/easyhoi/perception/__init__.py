@@ -1,0 +1,1 @@
+"""Perception: from a photo to the optimizer's inputs (pluggable backends per role)."""
