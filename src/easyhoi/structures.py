@@ -323,9 +323,7 @@ class HandParams:
         go = _batched(go, 3, None, "HandParams.global_orient", dtype)
         B = go.shape[0]
         object.__setattr__(self, "global_orient", go)
-        object.__setattr__(
-            self, "transl", _batched(self.transl, 3, B, "HandParams.transl", dtype)
-        )
+        object.__setattr__(self, "transl", _batched(self.transl, 3, B, "HandParams.transl", dtype))
         object.__setattr__(self, "pose", _batched(self.pose, NUM_POSE, B, "HandParams.pose", dtype))
         betas = torch.zeros(B, NUM_BETAS, dtype=dtype) if self.betas is None else self.betas
         object.__setattr__(self, "betas", _batched(betas, NUM_BETAS, B, "HandParams.betas", dtype))
