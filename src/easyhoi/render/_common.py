@@ -1,0 +1,133 @@
+"""Shared plumbing of the rasterizers: input validation, projection and culled pair generation.
+
+A *pair* is one (pixel, face) combination that a rasterizer evaluates. Pairs are generated from
+each face's screen-space bounding box (optionally grown by a margin) clipped to the image, fully
+vectorized: per-face pixel ranges -> ``repeat_interleave`` -> flat lists. The dense
+pixels x faces product is never formed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from easyhoi.checks import check_faces, check_finite
+from easyhoi.errors import InvalidInputError
+from easyhoi.structures import Camera
+
+
+def as_verts(verts, name: str = "verts") -> tuple[torch.Tensor, bool]:
+    """Validate vertices; returns ``(verts (B, V, 3), batched)``; floats kept, others -> float32."""
+    if not isinstance(verts, torch.Tensor):
+        try:
+            verts = torch.as_tensor(np.asarray(verts, dtype=np.float32))
+        except (TypeError, ValueError) as exc:
+            raise InvalidInputError(f"{name} is not a numeric array: {exc}") from None
+    if not verts.is_floating_point():
+        verts = verts.float()
+    if verts.ndim not in (2, 3) or verts.shape[-1] != 3:
+        raise InvalidInputError(
+            f"{name} must have shape (V, 3) or (B, V, 3), got {tuple(verts.shape)}"
+        )
+    check_finite(verts.detach(), name)
+    batched = verts.ndim == 3
+    return (verts if batched else verts.unsqueeze(0)), batched
+
+
+def as_faces(faces, num_vertices: int, name: str = "faces") -> torch.Tensor:
+    """Validate faces: (F, 3) integers in ``[0, V)``; returns a long tensor."""
+    if not isinstance(faces, torch.Tensor):
+        faces = torch.as_tensor(np.asarray(faces))
+    if faces.is_floating_point() or faces.dtype == torch.bool or faces.is_complex():
+        raise InvalidInputError(f"{name} must hold integers, got dtype {faces.dtype}")
+    faces = faces.long()
+    check_faces(faces, num_vertices, name)
+    return faces
+
+
+def as_camera(camera) -> Camera:
+    if not isinstance(camera, Camera):
+        raise InvalidInputError(f"camera must be an easyhoi Camera, got {type(camera).__name__}")
+    return camera
+
+
+def check_positive(value: float, name: str) -> float:
+    value = float(value)
+    if not np.isfinite(value) or value <= 0:
+        raise InvalidInputError(f"{name} must be a positive finite number, got {value}")
+    return value
+
+
+def project_faces(
+    verts: torch.Tensor, faces: torch.Tensor, camera: Camera, near: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Project a batch of meshes and drop faces with a vertex closer than ``near``.
+
+    Args:
+        verts: (B, V, 3) world-space vertices.
+        faces: (F, 3) long.
+        camera: the camera (its tensors may require gradients).
+        near: near-plane distance (camera z) in world units.
+
+    Returns:
+        tri_uv: (N, 3, 2) pixel coordinates of the kept faces' corners (differentiable).
+        tri_z: (N, 3) camera z of the corners (differentiable).
+        keep: (N,) long, flat index ``b * F + f`` of each kept face.
+    """
+    B = verts.shape[0]
+    F = faces.shape[0]
+    uv, z = camera.project(verts.to(camera.K.dtype))  # (B, V, 2), (B, V)
+    tri_uv = uv[:, faces].reshape(B * F, 3, 2)
+    tri_z = z[:, faces].reshape(B * F, 3)
+    with torch.no_grad():
+        ok = (tri_z >= near).all(dim=1) & torch.isfinite(tri_uv).all(dim=(1, 2))
+        keep = ok.nonzero().squeeze(1)
+    return tri_uv[keep], tri_z[keep], keep
+
+
+def bbox_pairs(
+    tri_uv: torch.Tensor, height: int, width: int, margin: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """All (face, pixel) pairs whose pixel centre lies in the face's bounding box +- ``margin``.
+
+    Args:
+        tri_uv: (N, 3, 2) corner pixel coordinates (only read, never differentiated).
+        height, width: image size; pixel (i, j) has its centre at (u, v) = (j + 0.5, i + 0.5).
+        margin: growth of every bounding box, in pixels.
+
+    Returns:
+        face: (P,) long index into ``tri_uv``.
+        pix: (P,) long flat pixel index ``i * width + j``.
+    """
+    t = tri_uv.detach()
+    dev = t.device
+    if t.shape[0] == 0:
+        empty = torch.zeros(0, dtype=torch.long, device=dev)
+        return empty, empty
+    lo = t.amin(dim=1) - margin - 0.5  # pixel j is covered iff lo <= j <= hi
+    hi = t.amax(dim=1) + margin - 0.5
+    lim = torch.tensor([width, height], dtype=t.dtype, device=dev)
+    j0 = torch.ceil(lo).clamp(min=0).minimum(lim).long()  # (N, 2): column, row
+    j1 = torch.floor(hi).clamp(max=lim - 1).maximum(torch.full_like(lim, -1)).long()
+    ext = (j1 - j0 + 1).clamp(min=0)  # (N, 2): nx, ny
+    counts = ext[:, 0] * ext[:, 1]
+    total = int(counts.sum())
+    if total == 0:
+        empty = torch.zeros(0, dtype=torch.long, device=dev)
+        return empty, empty
+    face = torch.repeat_interleave(torch.arange(t.shape[0], device=dev), counts, output_size=total)
+    start = torch.cumsum(counts, 0) - counts
+    k = torch.arange(total, device=dev) - start[face]
+    nx = ext[face, 0]
+    r = torch.div(k, nx, rounding_mode="floor")
+    col = j0[face, 0] + (k - r * nx)
+    row = j0[face, 1] + r
+    return face, row * width + col
+
+
+def pixel_uv(pix: torch.Tensor, width: int, height: int, dtype) -> torch.Tensor:
+    """(P,) flat pixel indices (possibly offset by ``b * H * W``) -> (P, 2) centre coordinates."""
+    local = pix % (width * height)
+    v = torch.div(local, width, rounding_mode="floor")
+    u = local - v * width
+    return torch.stack([u.to(dtype) + 0.5, v.to(dtype) + 0.5], dim=1)
