@@ -1,0 +1,1 @@
+"""Reading and writing files: photos and masks (``image``), results and exports."""

@@ -1,0 +1,256 @@
+"""Offline hand keypoints with MediaPipe Hands (the model files ship inside the mediapipe wheel).
+
+Two passes:
+
+1. MediaPipe's own pipeline (palm detector -> landmark model), ``static_image_mode=True``.
+2. When the palm detector finds nothing (gloves, grey-scale photos, hands cut by the object), an
+   ROI search: the landmark model alone is run on square windows over a grid of positions, three
+   sizes and four rotations (the landmark model reports a hand only when its own presence score
+   exceeds 0.5). Every hit is refined twice by re-cropping around its own landmarks (as MediaPipe's
+   tracking does between frames), hits are clustered by keypoint centre, and each cluster with
+   enough votes becomes one hand. The window grid is deterministic.
+
+Conventions of the output (:class:`~easyhoi.perception.base.HandDetection`):
+
+- ``keypoints2d``: MediaPipe's 21 landmarks already follow the OpenPose order of
+  :data:`easyhoi.structures.KEYPOINT_NAMES` (wrist; thumb CMC, MCP, IP, tip; index MCP, PIP, DIP,
+  tip; middle; ring; pinky), so the mapping is the identity; pixel units of the input image.
+- ``keypoints3d``: ``hand_world_landmarks`` in metres, origin at MediaPipe's hand centre. They are
+  already expressed with the image axes (x right, y down, z away from the camera), i.e. the
+  camera-aligned frame; no axis flip is applied (verified in the tests by fitting the
+  orthographic projection of the 3D points to the 2D keypoints).
+- ``side``: MediaPipe's handedness label assumes a mirrored (selfie) image. For ordinary photos
+  the label is swapped (verified on the shared photos: the left hand holding the reusable cup is
+  labelled "Right" by MediaPipe). Pass ``mirrored=True`` for selfie-mirrored input.
+- ``score``: MediaPipe exposes no detection score in this API; the handedness probability is
+  used, halved for hands found only by the ROI search (``meta["pass"]`` says which pass).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from easyhoi.errors import BackendError, InvalidInputError, require
+from easyhoi.io.image import check_image
+from easyhoi.perception.base import HandDetection, register
+
+logger = logging.getLogger(__name__)
+
+#: MediaPipe landmark index -> OpenPose keypoint index (identity: same order).
+MEDIAPIPE_TO_OPENPOSE = tuple(range(21))
+
+#: ROI search windows: side as a fraction of the image's longer side, and rotations (radians).
+#: Windows overlap by half their side.
+_ROI_SIZES = (0.35, 0.6)
+_ROI_ROTATIONS = (0.0, math.pi / 2, -math.pi / 2)
+
+_ROI_GRAPH = """
+input_stream: "image"
+input_stream: "roi"
+output_stream: "landmarks"
+output_stream: "world_landmarks"
+output_stream: "handedness"
+node {
+  calculator: "HandLandmarkCpu"
+  input_stream: "IMAGE:image"
+  input_stream: "ROI:roi"
+  input_side_packet: "MODEL_COMPLEXITY:model_complexity"
+  output_stream: "LANDMARKS:landmarks"
+  output_stream: "WORLD_LANDMARKS:world_landmarks"
+  output_stream: "HANDEDNESS:handedness"
+}
+"""
+
+
+def roi_from_keypoints(kp: np.ndarray, width: int, height: int) -> tuple[float, ...]:
+    """Square, rotated crop around (21, 2) pixel keypoints, fingers pointing up in the crop.
+
+    Returns (x_center, y_center, width, height, rotation) normalised as in MediaPipe's
+    ``NormalizedRect`` (rotation clockwise, radians).
+    """
+    v = kp[9] - kp[0]  # wrist -> middle MCP
+    rot = math.pi / 2 - math.atan2(-v[1], v[0])
+    rot = (rot + math.pi) % (2 * math.pi) - math.pi
+    c, s = math.cos(rot), math.sin(rot)
+    # rotate points into the crop frame (the inverse of the crop rotation)
+    R = np.array([[c, s], [-s, c]])
+    q = kp @ R.T
+    lo, hi = q.min(0), q.max(0)
+    centre_q = (lo + hi) / 2
+    size = 2.0 * float((hi - lo).max())
+    centre_q = centre_q + np.array([0.0, -0.1 * size])  # shift towards the fingers
+    centre = centre_q @ R  # back to the image frame
+    return (centre[0] / width, centre[1] / height, size / width, size / height, rot)
+
+
+@register("hand", "mediapipe")
+class MediaPipeHands:
+    """MediaPipe Hands keypoint detector (offline, CPU, deterministic).
+
+    Parameters
+    ----------
+    max_hands : int
+        Most hands returned.
+    min_detection_confidence : float
+        Palm-detector threshold of pass 1.
+    model_complexity : int
+        0 (lite) or 1 (full) landmark model.
+    roi_search : bool
+        Run pass 2 (ROI search) when pass 1 finds no hand.
+    mirrored : bool
+        The input is a mirrored selfie image (keep MediaPipe's handedness label).
+    """
+
+    def __init__(
+        self,
+        max_hands: int = 2,
+        min_detection_confidence: float = 0.3,
+        model_complexity: int = 1,
+        roi_search: bool = True,
+        mirrored: bool = False,
+    ):
+        if model_complexity not in (0, 1):
+            raise InvalidInputError(f"model_complexity must be 0 or 1, got {model_complexity}")
+        if max_hands < 1:
+            raise InvalidInputError(f"max_hands must be >= 1, got {max_hands}")
+        self._mp = require("mediapipe", purpose="hand keypoint detection")
+        self.max_hands = int(max_hands)
+        self.min_detection_confidence = float(min_detection_confidence)
+        self.model_complexity = int(model_complexity)
+        self.roi_search = bool(roi_search)
+        self.mirrored = bool(mirrored)
+        self._hands = None
+        self._roi = None
+
+    # -- helpers -------------------------------------------------------------------------------
+    def _side(self, label: str) -> str:
+        label = label.lower()
+        if label not in ("left", "right"):
+            raise BackendError(f"unexpected MediaPipe handedness label {label!r}")
+        if self.mirrored:
+            return label
+        return "left" if label == "right" else "right"
+
+    def _make(self, lms, wlms, handed, w: int, h: int, pass_name: str, **meta) -> HandDetection:
+        kp = np.array([[p.x * w, p.y * h] for p in lms.landmark], dtype=np.float64)
+        kp = kp[list(MEDIAPIPE_TO_OPENPOSE)]
+        k3 = None
+        if wlms is not None:
+            k3 = np.array([[p.x, p.y, p.z] for p in wlms.landmark], dtype=np.float64)
+            k3 = k3[list(MEDIAPIPE_TO_OPENPOSE)]
+        cls = handed.classification[0]
+        score = float(cls.score) * (1.0 if pass_name == "palm" else 0.5)
+        rel_z = [float(p.z) for p in lms.landmark]
+        return HandDetection(
+            keypoints2d=kp,
+            keypoints3d=k3,
+            side=self._side(cls.label),
+            score=score,
+            meta={"pass": pass_name, "mediapipe_label": cls.label, "relative_z": rel_z, **meta},
+        )
+
+    # -- pass 1 --------------------------------------------------------------------------------
+    def _palm_pass(self, image: np.ndarray) -> list[HandDetection]:
+        if self._hands is None:
+            self._hands = self._mp.solutions.hands.Hands(
+                static_image_mode=True,
+                max_num_hands=self.max_hands,
+                model_complexity=self.model_complexity,
+                min_detection_confidence=self.min_detection_confidence,
+            )
+        h, w = image.shape[:2]
+        res = self._hands.process(image)
+        if not res.multi_hand_landmarks:
+            return []
+        worlds = res.multi_hand_world_landmarks or [None] * len(res.multi_hand_landmarks)
+        return [
+            self._make(lm, wl, hd, w, h, "palm")
+            for lm, wl, hd in zip(
+                res.multi_hand_landmarks, worlds, res.multi_handedness, strict=False
+            )
+        ]
+
+    # -- pass 2 --------------------------------------------------------------------------------
+    def _run_roi(self, image: np.ndarray, roi: tuple[float, ...]):
+        from mediapipe.framework.formats import rect_pb2
+        from mediapipe.python import solution_base
+
+        if self._roi is None:
+            self._roi = solution_base.SolutionBase(
+                graph_config=_ROI_GRAPH, side_inputs={"model_complexity": self.model_complexity}
+            )
+        x, y, rw, rh, rot = roi
+        rect = rect_pb2.NormalizedRect(x_center=x, y_center=y, width=rw, height=rh, rotation=rot)
+        out = self._roi.process({"image": image, "roi": rect})
+        if out.landmarks is None:
+            return None
+        return out
+
+    def _roi_pass(self, image: np.ndarray) -> list[HandDetection]:
+        h, w = image.shape[:2]
+        m = float(max(h, w))
+        hits = []
+        for frac in _ROI_SIZES:
+            side = frac * m
+            nx = max(2, int(math.ceil(w / (0.5 * side))) - 1)
+            ny = max(2, int(math.ceil(h / (0.5 * side))) - 1)
+            for cy in np.linspace(side / 2, h - side / 2, ny) if h > side else [h / 2]:
+                for cx in np.linspace(side / 2, w - side / 2, nx) if w > side else [w / 2]:
+                    for rot in _ROI_ROTATIONS:
+                        out = self._run_roi(image, (cx / w, cy / h, side / w, side / h, rot))
+                        if out is not None:
+                            hits.append(out)
+        refined = []
+        for out in hits:
+            kp = np.array([[p.x * w, p.y * h] for p in out.landmarks.landmark])
+            nxt = self._run_roi(image, roi_from_keypoints(kp, w, h))
+            if nxt is not None:
+                refined.append(nxt)
+        logger.debug(
+            "ROI search: %d window hits, %d kept after re-cropping", len(hits), len(refined)
+        )
+        refined = refined or hits
+        if not refined:
+            return []
+        dets = [
+            self._make(o.landmarks, o.world_landmarks, o.handedness, w, h, "roi_search")
+            for o in refined
+        ]
+        # cluster by keypoint centre: same hand when centres are closer than half a hand size
+        clusters: list[list[HandDetection]] = []
+        for d in dets:
+            c = d.keypoints2d.mean(0)
+            size = float(np.ptp(d.keypoints2d, axis=0).max())
+            for cl in clusters:
+                if np.linalg.norm(cl[0].keypoints2d.mean(0) - c) < 0.5 * size:
+                    cl.append(d)
+                    break
+            else:
+                clusters.append([d])
+        clusters.sort(key=lambda cl: (-len(cl), -max(d.score for d in cl)))
+        out_dets = []
+        for cl in clusters[: self.max_hands]:
+            best = max(cl, key=lambda d: d.score)
+            meta = dict(best.meta, votes=len(cl))
+            out_dets.append(
+                HandDetection(best.keypoints2d, best.keypoints3d, best.side, best.score, meta=meta)
+            )
+        return out_dets
+
+    def detect(self, image: np.ndarray) -> list[HandDetection]:
+        """All hands in an (H, W, 3) uint8 RGB image, most confident first.
+
+        Returns
+        -------
+        list of HandDetection
+            ``keypoints2d`` (21, 2) pixels, ``keypoints3d`` (21, 3) metres; empty when no hand.
+        """
+        image = check_image(image)
+        dets = self._palm_pass(image)
+        if not dets and self.roi_search:
+            dets = self._roi_pass(image)
+        dets.sort(key=lambda d: -d.score)
+        return dets[: self.max_hands]
