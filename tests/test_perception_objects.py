@@ -1,0 +1,201 @@
+"""Silhouette-based object reconstruction: branch choice, volumes, silhouettes, crops."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from easyhoi.errors import InvalidInputError
+from easyhoi.perception.objects import (
+    SilhouetteReconstructor,
+    local_thickness,
+    object_crop,
+    signed_distance_2d,
+)
+
+
+def disk(shape=(200, 240), center=(120, 100), radius=60) -> np.ndarray:
+    m = np.zeros(shape, np.uint8)
+    cv2.circle(m, center, radius, 1, -1)
+    return m.astype(bool)
+
+
+def rect() -> np.ndarray:
+    m = np.zeros((200, 240), bool)
+    m[60:140, 30:210] = True  # 180 x 80: a cylinder of radius 40, length 180
+    return m
+
+
+def l_shape() -> np.ndarray:
+    m = np.zeros((200, 240), bool)
+    m[30:170, 40:90] = True
+    m[120:170, 40:200] = True
+    return m
+
+
+def silhouette(mesh, shape) -> np.ndarray:
+    """Orthographic silhouette of a canonical mesh in the source image's pixels."""
+    md = mesh.metadata["easyhoi"]
+    uv = mesh.vertices[:, :2] * md["pixels_per_unit"] + np.asarray(md["center_px"])
+    tris = np.round((uv[mesh.faces] - 0.5) * 16).astype(np.int32)  # 4 sub-pixel bits
+    out = np.zeros(shape, np.uint8)
+    for t in tris:
+        cv2.fillConvexPoly(out, t, 1, lineType=cv2.LINE_8, shift=4)
+    return out.astype(bool)
+
+
+def iou(a, b) -> float:
+    return float((a & b).sum() / (a | b).sum())
+
+
+def pixel_volume(mesh) -> float:
+    return float(mesh.volume * mesh.metadata["easyhoi"]["pixels_per_unit"] ** 3)
+
+
+def check_canonical(mesh):
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    assert mesh.volume > 0
+    lo, hi = mesh.bounds
+    np.testing.assert_allclose((lo + hi) / 2, 0, atol=1e-9)
+    assert abs((hi - lo).max() - 1.0) < 1e-9
+    assert 2000 <= len(mesh.faces) <= 8000
+
+
+def test_circle_gives_sphere_by_revolution():
+    m = disk()
+    mesh = SilhouetteReconstructor().reconstruct(None, m)
+    assert mesh.metadata["easyhoi"]["method"] == "revolution"
+    check_canonical(mesh)
+    r = np.sqrt(m.sum() / np.pi)
+    assert pixel_volume(mesh) == pytest.approx(4 / 3 * np.pi * r**3, rel=0.05)
+    assert iou(silhouette(mesh, m.shape), m) > 0.95
+
+
+def test_rectangle_gives_cylinder_about_long_axis():
+    m = rect()
+    mesh = SilhouetteReconstructor().reconstruct(None, m)
+    md = mesh.metadata["easyhoi"]
+    assert md["method"] == "revolution"
+    assert abs(md["axis"][0]) == pytest.approx(1.0, abs=1e-6)  # the long (horizontal) axis
+    check_canonical(mesh)
+    assert pixel_volume(mesh) == pytest.approx(np.pi * 40**2 * 180, rel=0.03)
+    # depth extent = diameter: the cylinder is round
+    ext = mesh.extents * md["pixels_per_unit"]
+    assert ext == pytest.approx([180, 80, 80], rel=0.02)
+    assert iou(silhouette(mesh, m.shape), m) > 0.95
+
+
+def test_rotated_rectangle_axis_follows_pca():
+    m = np.zeros((240, 240), np.uint8)
+    box = cv2.boxPoints(((120, 120), (160, 60), 30))
+    cv2.fillPoly(m, [box.astype(np.int32)], 1)
+    m = m.astype(bool)
+    mesh = SilhouetteReconstructor().reconstruct(None, m)
+    md = mesh.metadata["easyhoi"]
+    assert md["method"] == "revolution"
+    angle = np.degrees(np.arctan2(md["axis"][1], md["axis"][0])) % 180
+    assert angle == pytest.approx(30, abs=2)
+    assert pixel_volume(mesh) == pytest.approx(np.pi * 30**2 * 160, rel=0.05)
+    assert iou(silhouette(mesh, m.shape), m) > 0.9
+
+
+def test_l_shape_inflates():
+    m = l_shape()
+    rec = SilhouetteReconstructor()
+    assert rec.symmetry(m)["score"] < rec.symmetry_threshold
+    mesh = rec.reconstruct(np.zeros((*m.shape, 3), np.uint8), m)
+    assert mesh.metadata["easyhoi"]["method"] == "inflation"
+    check_canonical(mesh)
+    assert iou(silhouette(mesh, m.shape), m) > 0.9
+    # round cross-sections: depth extent = diameter of the largest inscribed disk (at the
+    # elbow: 2 * 29.3 px, the arms alone are 50 px wide)
+    depth = mesh.extents[2] * mesh.metadata["easyhoi"]["pixels_per_unit"]
+    assert depth == pytest.approx(2 * signed_distance_2d(m).max(), rel=0.05)
+    # volume between the tube bound (2 arms of radius 25) and the slab bound (area x width)
+    assert pixel_volume(mesh) < m.sum() * 50
+    assert pixel_volume(mesh) > 0.6 * m.sum() * 50
+
+
+def test_equal_arm_l_is_symmetric_but_not_revolved():
+    m = np.zeros((200, 200), bool)
+    m[20:180, 20:70] = True
+    m[130:180, 20:180] = True
+    sym = SilhouetteReconstructor().symmetry(m)
+    assert sym["reflection_iou"] > 0.95  # symmetric about the diagonal
+    assert sym["profile_iou"] < 0.9  # but its cross-sections are not single chords
+    mesh = SilhouetteReconstructor().reconstruct(None, m)
+    assert mesh.metadata["easyhoi"]["method"] == "inflation"
+
+
+def test_inflated_disk_is_a_sphere():
+    m = disk()
+    mesh = SilhouetteReconstructor(symmetry_threshold=2.0).reconstruct(None, m)
+    assert mesh.metadata["easyhoi"]["method"] == "inflation"
+    check_canonical(mesh)
+    r = np.sqrt(m.sum() / np.pi)
+    assert pixel_volume(mesh) == pytest.approx(4 / 3 * np.pi * r**3, rel=0.05)
+    assert iou(silhouette(mesh, m.shape), m) > 0.9
+
+
+def test_front_faces_camera():
+    """z points away from the camera: the front half (z < 0) faces -z."""
+    mesh = SilhouetteReconstructor().reconstruct(None, disk())
+    front = mesh.triangles_center[:, 2] < -0.3
+    assert front.sum() > 10
+    assert (mesh.face_normals[front, 2] < 0).all()
+
+
+def test_local_thickness_of_bar_and_disk():
+    m = rect()
+    d = signed_distance_2d(m)
+    R = local_thickness(m, d)
+    assert np.median(R[m]) == pytest.approx(40, abs=1.0)
+    md = disk()
+    Rd = local_thickness(md, signed_distance_2d(md))
+    assert Rd[md].min() == pytest.approx(signed_distance_2d(md).max(), abs=1e-6)
+    # the L: arms 50 px wide -> R = 25 far from the elbow
+    ml = l_shape()
+    Rl = local_thickness(ml, signed_distance_2d(ml))
+    assert Rl[40, 60] == pytest.approx(25, abs=1.0) and Rl[160, 190] == pytest.approx(25, abs=1)
+
+
+def test_deterministic():
+    m = l_shape()
+    a = SilhouetteReconstructor().reconstruct(None, m)
+    b = SilhouetteReconstructor().reconstruct(None, m)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+
+
+def test_bad_inputs():
+    rec = SilhouetteReconstructor()
+    with pytest.raises(InvalidInputError, match="shape"):
+        rec.reconstruct(None, np.zeros((4, 4, 3), bool))
+    with pytest.raises(InvalidInputError, match="pixels"):
+        rec.reconstruct(None, np.zeros((40, 40), bool))
+    with pytest.raises(InvalidInputError, match="image is"):
+        rec.reconstruct(np.zeros((10, 10, 3), np.uint8), disk())
+    with pytest.raises(InvalidInputError):
+        SilhouetteReconstructor(n_rings=1)
+
+
+def test_object_crop_white_background():
+    img = np.zeros((200, 240, 3), np.uint8)
+    img[..., 1] = 100
+    m = rect()
+    crop = object_crop(img, m, pad=0.1)
+    S = crop.image.shape[0]
+    assert crop.image.shape == (S, S, 3) and S == 216  # 180 * 1.2
+    assert crop.mask.sum() == m.sum()
+    assert (crop.image[~crop.mask] == 255).all()
+    assert (crop.image[crop.mask] == [0, 100, 0]).all()
+    u0, v0, u1, v1 = crop.box
+    assert u1 - u0 == S and v1 - v0 == S
+    with pytest.raises(InvalidInputError):
+        object_crop(img, m, pad=-1)
+
+
+def test_registered():
+    from easyhoi.perception import base
+
+    assert base._REGISTRY["object"]["silhouette"] is SilhouetteReconstructor
