@@ -159,14 +159,14 @@ def test_forward_matches_naive_reference(mano_dir, flat):
 
 def test_gradcheck_vertices(model):
     p = random_params(B=1, seed=5)
-    sub = torch.arange(0, 778, 53)
+    sub = torch.arange(0, 778, 97)
     inputs = tuple(t.clone().requires_grad_(True) for t in p.tensors().values())
 
     def f(go, transl, pose, betas):
         out = model(HandParams(go, transl, pose, betas))
         return out.vertices[:, sub], out.keypoints
 
-    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-6)
+    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-6, fast_mode=True)
 
 
 def test_closed_mesh(model):

@@ -153,3 +153,12 @@ def test_the_payload_is_real(tmp_path):
     path = _write(tmp_path / "x.pkl", {"evil": _Reducer(os.system, f"touch {target}")})
     pickle.loads(path.read_bytes())
     assert target.exists()
+
+
+def test_numpy2_module_spelling_loads(tmp_path):
+    """numpy 2 writes ``numpy._core.multiarray``; the GLOBAL opcode is a text line."""
+    raw = pickle.dumps({"a": np.arange(5.0)}, protocol=2)
+    assert b"numpy.core.multiarray" in raw
+    path = tmp_path / "np2.pkl"
+    path.write_bytes(raw.replace(b"numpy.core.multiarray", b"numpy._core.multiarray"))
+    np.testing.assert_array_equal(load_mano_pickle(path)["a"], np.arange(5.0))

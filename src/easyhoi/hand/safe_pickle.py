@@ -178,19 +178,32 @@ def to_plain(obj, depth: int = 0):
 # ----------------------------------------------------------------------------------------------
 
 
-def _numpy_globals() -> dict[tuple[str, str], Any]:
-    from numpy.core import multiarray, numeric
+def _numpy_function(modules: tuple[str, ...], name: str):
+    """The first ``modules[i].name`` that imports (numpy 2 moved ``numpy.core`` to ``_core``)."""
+    import importlib
+    import warnings
 
-    allowed = {
-        "_reconstruct": multiarray._reconstruct,
-        "scalar": multiarray.scalar,
-    }
+    for mod in modules:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", DeprecationWarning)
+                fn = getattr(importlib.import_module(mod), name, None)
+        except ImportError:
+            continue
+        if fn is not None:
+            return fn
+    raise ImportError(f"numpy provides none of {modules} .{name}")  # pragma: no cover
+
+
+def _numpy_globals() -> dict[tuple[str, str], Any]:
+    multiarray = ("numpy._core.multiarray", "numpy.core.multiarray")
+    numeric = ("numpy._core.numeric", "numpy.core.numeric")
     out: dict[tuple[str, str], Any] = {}
-    for mod in ("numpy.core.multiarray", "numpy._core.multiarray"):
-        for name, fn in allowed.items():
-            out[(mod, name)] = fn
-    for mod in ("numpy.core.numeric", "numpy._core.numeric"):
-        out[(mod, "_frombuffer")] = numeric._frombuffer
+    for name in ("_reconstruct", "scalar"):
+        fn = _numpy_function(multiarray, name)
+        out.update({(mod, name): fn for mod in multiarray})
+    frombuffer = _numpy_function(numeric, "_frombuffer")
+    out.update({(mod, "_frombuffer"): frombuffer for mod in numeric})
     out[("numpy", "ndarray")] = np.ndarray
     out[("numpy", "dtype")] = np.dtype
     return out
