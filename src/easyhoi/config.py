@@ -1,0 +1,552 @@
+"""Configuration: a tree of frozen dataclasses with named presets.
+
+Every weight, threshold, learning rate and schedule of the optimizer lives here (never inline in
+the code). The tree::
+
+    EasyHOIConfig
+      optim: OptimConfig
+        camera: CameraStageConfig     stage 1, camera setup
+        contact: ContactStageConfig   stage 2, HOI contact alignment
+        refine: RefineStageConfig     stage 3, hand parameter refinement
+      perception: PerceptionConfig    backend names per role
+
+Each field carries an attribute docstring (the string literal under it); :func:`field_docs`
+reads them, so a CLI can show them as ``--help``. Presets: ``PRESETS["paper"]`` (the paper's
+schedule) and ``PRESETS["fast"]`` (the default, for a CPU). Change values with
+:func:`with_overrides` (dotted paths, type-checked) and persist with :func:`to_dict` /
+:func:`from_dict` (JSON-ready).
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import inspect
+import json
+import textwrap
+import types
+import typing
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+from functools import cache
+from typing import Any
+
+from easyhoi.errors import InvalidInputError
+
+__all__ = [
+    "CameraStageConfig",
+    "ContactStageConfig",
+    "EasyHOIConfig",
+    "OptimConfig",
+    "PRESETS",
+    "PerceptionConfig",
+    "RefineStageConfig",
+    "field_docs",
+    "from_dict",
+    "get_preset",
+    "parse_overrides",
+    "to_dict",
+    "with_overrides",
+]
+
+
+def _positive(obj, *names: str) -> None:
+    for n in names:
+        v = getattr(obj, n)
+        if not v > 0:
+            raise InvalidInputError(f"{type(obj).__name__}.{n} must be > 0, got {v!r}")
+
+
+def _non_negative(obj, *names: str) -> None:
+    for n in names:
+        v = getattr(obj, n)
+        if v < 0:
+            raise InvalidInputError(f"{type(obj).__name__}.{n} must be >= 0, got {v!r}")
+
+
+def _check_schedule(obj) -> None:
+    s = obj.resolution_schedule
+    if len(s) == 0 or any(not 0 < f <= 1 for f in s) or list(s) != sorted(s):
+        raise InvalidInputError(
+            f"{type(obj).__name__}.resolution_schedule must be non-empty increasing fractions in "
+            f"(0, 1], got {s!r}"
+        )
+
+
+@dataclass(frozen=True)
+class CameraStageConfig:
+    """Stage 1: fit the object camera so the rendered object silhouette matches M^_o."""
+
+    lr: float = 1e-2
+    """Adam learning rate for the camera parameters."""
+    max_iters: int = 1000
+    """Iteration cap over all resolution phases together (split evenly between them)."""
+    stop_loss: float = 0.1
+    """Stop once the soft IoU loss (without the Sinkhorn term) is below this value."""
+    patience: int = 0
+    """Early stopping: stop after this many iterations without the total loss improving by
+    min_delta (0 = off, the paper)."""
+    min_delta: float = 1e-4
+    """Smallest decrease of the total loss that counts as an improvement for patience."""
+    resolution_schedule: tuple[float, ...] = (1.0,)
+    """Coarse-to-fine render sizes as fractions of optim.render_size, increasing; each phase
+    gets an equal share of max_iters."""
+    iou_weight: float = 1.0
+    """Weight of the soft IoU loss between the rendered silhouette and the amodal mask."""
+    use_sinkhorn: bool = True
+    """Add the Sinkhorn (optimal-transport) mask term, which has gradients without overlap."""
+    sinkhorn_weight: float = 1.0
+    """Weight of the Sinkhorn mask term."""
+    sinkhorn_grid: int = 32
+    """Cells per side of the coarse grid the Sinkhorn term works on (cost ~ grid^4)."""
+    sinkhorn_blur: float = 0.05
+    """Entropic blur of the Sinkhorn term, in image-normalised units (long side = 1)."""
+    sinkhorn_scaling: float = 0.8
+    """epsilon-scaling ratio of the Sinkhorn solver, in (0, 1)."""
+    init_fov_deg: float = 30.0
+    """Initial vertical field of view in degrees (InstantMesh's rendering setup)."""
+    init_distance: float = 4.5
+    """Initial camera distance from the object centre, in object units (InstantMesh)."""
+    init_from_masks: bool = False
+    """Initialise the camera translation so that the object's projected box matches the amodal
+    mask's box (False: centred object at init_distance, as the reference implementation)."""
+    optimise_focal: bool = True
+    """Optimise fx and fy together with the 6-DoF pose (8 DoF); False keeps the focal fixed."""
+
+    def __post_init__(self):
+        _positive(self, "lr", "sinkhorn_grid", "sinkhorn_blur", "init_fov_deg", "init_distance")
+        _non_negative(self, "max_iters", "stop_loss", "patience", "min_delta")
+        _non_negative(self, "iou_weight", "sinkhorn_weight")
+        _check_schedule(self)
+        if not 0 < self.sinkhorn_scaling < 1:
+            raise InvalidInputError(
+                f"CameraStageConfig.sinkhorn_scaling must be in (0, 1), got {self.sinkhorn_scaling}"
+            )
+        if not self.init_fov_deg < 180:
+            raise InvalidInputError(f"init_fov_deg must be < 180, got {self.init_fov_deg}")
+
+
+@dataclass(frozen=True)
+class ContactStageConfig:
+    """Stage 2: align the hand's global pose (and scale) to the hand mask and the contacts."""
+
+    lr: float = 1e-2
+    """Adam learning rate for the hand's global rotation, translation and log-scale."""
+    max_iters: int = 1000
+    """Iteration cap of the mask-constrained optimisation."""
+    stop_loss: float = 0.1
+    """Stop once the hand-mask soft IoU loss is below this value and every registration in
+    register_at has run (or could not run because the cap came first)."""
+    patience: int = 0
+    """Early stopping patience in iterations (0 = off), counted after the last registration."""
+    min_delta: float = 1e-4
+    """Smallest decrease of the loss that counts as an improvement for patience."""
+    resolution_schedule: tuple[float, ...] = (1.0,)
+    """Coarse-to-fine render sizes as fractions of optim.render_size, increasing."""
+    register_at: tuple[int, ...] = (100, 200)
+    """Iterations at which contact-based registration (depth peeling + ICP) runs."""
+    peel_layers: int = 4
+    """Depth-peeling layers used to collect every ray hit through a contact pixel."""
+    palmar_only: bool = True
+    """Keep only hand hits on palmar faces (the dorsal faces of the template are excluded)."""
+    icp_iters: int = 30
+    """Maximum iterations of the translation-only ICP between hand and object contact points."""
+    icp_tolerance: float = 1e-7
+    """ICP stops when the translation update is shorter than this (object units)."""
+    icp_trim_fraction: float = 0.0
+    """Fraction of the farthest correspondences dropped in each ICP iteration (0 = plain ICP)."""
+    optimise_scale: bool = True
+    """Optimise the hand's uniform scale (the object frame has no metric scale)."""
+
+    def __post_init__(self):
+        _positive(self, "lr", "peel_layers")
+        _non_negative(self, "max_iters", "stop_loss", "patience", "min_delta", "icp_iters")
+        _non_negative(self, "icp_tolerance")
+        _check_schedule(self)
+        if any(r < 0 for r in self.register_at) or list(self.register_at) != sorted(
+            set(self.register_at)
+        ):
+            raise InvalidInputError(
+                f"ContactStageConfig.register_at must be strictly increasing iterations >= 0, "
+                f"got {self.register_at!r}"
+            )
+        if not 0 <= self.icp_trim_fraction < 1:
+            raise InvalidInputError(
+                f"ContactStageConfig.icp_trim_fraction must be in [0, 1), "
+                f"got {self.icp_trim_fraction}"
+            )
+
+
+@dataclass(frozen=True)
+class RefineStageConfig:
+    """Stage 3: refine the hand's global pose and articulation with the combined loss."""
+
+    lr_global: float = 1e-4
+    """Adam learning rate of the global pose phi (rotation, translation)."""
+    lr_pose: float = 1e-2
+    """Adam learning rate of the articulation theta."""
+    max_iters: int = 1000
+    """Iteration cap (the paper does not state one; the cap of the other stages)."""
+    patience: int = 0
+    """Early stopping patience in iterations (0 = off)."""
+    min_delta: float = 1e-5
+    """Smallest decrease of the loss that counts as an improvement for patience."""
+    resolution_schedule: tuple[float, ...] = (1.0,)
+    """Coarse-to-fine render sizes as fractions of optim.render_size, increasing."""
+    hand_mask_weight: float = 5.0
+    """Weight of the soft IoU loss between the rendered hand and M_h (0 disables the term)."""
+    penetration_weight: float = 10.0
+    """Weight of the penetration loss (1/N) sum max(0, -d(v)) (0 disables it)."""
+    contact_weight: float = 5.0
+    """Weight of the contact loss sum over contact-zone vertices of max(0, d(v)) (0 disables)."""
+    reg_weight: float = 0.1
+    """Weight of the pose regulariser ||theta - theta_0||_1 (0 disables it)."""
+    sdf_resolution: int = 64
+    """Cells per side of the object SDF grid queried by trilinear interpolation."""
+    penetration_threshold: float = -5e-3
+    """A vertex counts as penetrating when its SDF is below this (normalised object units)."""
+    contact_max_distance: float | None = None
+    """Attract contact vertices only closer than this (normalised object units); None = all,
+    the paper."""
+    optimise_global: bool = True
+    """Optimise the global pose phi."""
+    optimise_pose: bool = True
+    """Optimise the articulation theta."""
+
+    def __post_init__(self):
+        _positive(self, "lr_global", "lr_pose", "sdf_resolution")
+        _non_negative(self, "max_iters", "patience", "min_delta")
+        _non_negative(
+            self, "hand_mask_weight", "penetration_weight", "contact_weight", "reg_weight"
+        )
+        _check_schedule(self)
+        if self.penetration_threshold > 0:
+            raise InvalidInputError(
+                f"RefineStageConfig.penetration_threshold must be <= 0, "
+                f"got {self.penetration_threshold}"
+            )
+        if self.contact_max_distance is not None and not self.contact_max_distance > 0:
+            raise InvalidInputError(
+                f"RefineStageConfig.contact_max_distance must be > 0 or None, "
+                f"got {self.contact_max_distance}"
+            )
+
+
+_DTYPES = ("float32", "float64")
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    """The three-stage optimizer: which stages run, shared settings, and each stage."""
+
+    camera: CameraStageConfig = field(default_factory=CameraStageConfig)
+    """Stage 1, camera setup."""
+    contact: ContactStageConfig = field(default_factory=ContactStageConfig)
+    """Stage 2, HOI contact alignment."""
+    refine: RefineStageConfig = field(default_factory=RefineStageConfig)
+    """Stage 3, hand parameter refinement."""
+    run_camera: bool = True
+    """Run stage 1 (False: keep the initial camera; for ablations)."""
+    run_contact: bool = True
+    """Run stage 2 (False: keep the initial hand pose; for ablations)."""
+    run_refine: bool = True
+    """Run stage 3 (False: stop after contact alignment; for ablations)."""
+    render_size: int = 256
+    """Long side in pixels of the final-resolution renders; masks are resampled to it."""
+    seed: int = 0
+    """Seed of every random choice of the optimizer (same input + seed -> same output)."""
+    dtype: str = "float32"
+    """Floating-point type of the optimisation: "float32" or "float64"."""
+    history_every: int = 1
+    """Record the losses in the stage history every this many iterations (the last always)."""
+
+    def __post_init__(self):
+        _positive(self, "render_size", "history_every")
+        _non_negative(self, "seed")
+        if self.dtype not in _DTYPES:
+            raise InvalidInputError(
+                f"OptimConfig.dtype must be one of {_DTYPES}, got {self.dtype!r}"
+            )
+
+    @property
+    def torch_dtype(self):
+        """The torch dtype named by ``dtype``."""
+        import torch
+
+        return getattr(torch, self.dtype)
+
+
+@dataclass(frozen=True)
+class PerceptionConfig:
+    """Backend names per perception role (see easyhoi.perception.base.available)."""
+
+    hand: str = "mediapipe"
+    """Hand estimator: keypoints and hand parameters from the photo."""
+    segmenter: str = "classical"
+    """Hand / held-object segmenter giving M_h and M_o."""
+    inpainter: str = "opencv"
+    """Inpainter removing the hand from the photo."""
+    amodal: str = "classical"
+    """Amodal segmenter giving the complete object mask M^_o."""
+    object: str = "silhouette"
+    """Object reconstructor giving the object mesh."""
+
+
+_HAND_MODELS = ("open", "mano")
+
+
+@dataclass(frozen=True)
+class EasyHOIConfig:
+    """Everything a reconstruction needs to know besides its inputs."""
+
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    """The three-stage optimizer."""
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
+    """Perception backends by role."""
+    hand_model: str = "open"
+    """Hand model: "open" (built in) or "mano" (needs the user's MANO_RIGHT.pkl in mano_dir)."""
+    mano_dir: str | None = None
+    """Folder holding MANO_RIGHT.pkl (and MANO_LEFT.pkl); used when hand_model is "mano"."""
+    name: str = "custom"
+    """Name of the preset this configuration came from (provenance only)."""
+
+    def __post_init__(self):
+        if self.hand_model not in _HAND_MODELS:
+            raise InvalidInputError(
+                f"hand_model must be one of {_HAND_MODELS}, got {self.hand_model!r}"
+            )
+
+
+# ----------------------------------------------------------------------------------------------
+# presets
+# ----------------------------------------------------------------------------------------------
+
+_PAPER = EasyHOIConfig(
+    optim=OptimConfig(
+        camera=CameraStageConfig(),
+        contact=ContactStageConfig(),
+        refine=RefineStageConfig(),
+        render_size=256,
+    ),
+    name="paper",
+)
+
+_FAST = EasyHOIConfig(
+    optim=OptimConfig(
+        camera=CameraStageConfig(
+            max_iters=150,
+            patience=20,
+            resolution_schedule=(0.5, 1.0),
+            sinkhorn_grid=16,
+            init_from_masks=True,
+        ),
+        contact=ContactStageConfig(
+            max_iters=150,
+            patience=20,
+            resolution_schedule=(0.5, 1.0),
+            register_at=(20, 60),
+            icp_iters=20,
+        ),
+        refine=RefineStageConfig(
+            max_iters=100,
+            patience=15,
+            resolution_schedule=(0.5, 1.0),
+            sdf_resolution=48,
+        ),
+        render_size=128,
+    ),
+    name="fast",
+)
+
+#: Named presets. "paper": the paper's schedule (1000-iteration caps, registration at 100 and
+#: 200, 256 px renders, 32x32 Sinkhorn grid, 64^3 SDF). "fast" (the default): coarse-to-fine
+#: 64 -> 128 px, 150 / 150 / 100 iterations with early stopping, registration at 20 and 60.
+PRESETS: dict[str, EasyHOIConfig] = {"paper": _PAPER, "fast": _FAST}
+
+DEFAULT_PRESET = "fast"
+
+
+def get_preset(name: str = DEFAULT_PRESET) -> EasyHOIConfig:
+    """The preset called ``name`` (frozen, safe to share); InvalidInputError lists the names."""
+    if name not in PRESETS:
+        raise InvalidInputError(
+            f"unknown configuration preset {name!r}; available: {', '.join(sorted(PRESETS))}"
+        )
+    return PRESETS[name]
+
+
+# ----------------------------------------------------------------------------------------------
+# introspection, overrides, serialisation
+# ----------------------------------------------------------------------------------------------
+
+
+@cache
+def _hints(cls) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _is_optional(tp) -> tuple[bool, Any]:
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1 and len(typing.get_args(tp)) == 2:
+            return True, args[0]
+    return False, tp
+
+
+def _coerce(value: Any, tp, path: str) -> Any:
+    """Check ``value`` against the annotation ``tp``; return it normalised (lists -> tuples)."""
+    optional, base = _is_optional(tp)
+    if value is None:
+        if optional:
+            return None
+        raise InvalidInputError(f"config field {path!r} may not be None")
+    bad = InvalidInputError(
+        f"config field {path!r} expects {getattr(tp, '__name__', str(tp))}, "
+        f"got {type(value).__name__} {value!r}"
+    )
+    if base is bool:
+        if not isinstance(value, bool):
+            raise bad
+        return value
+    if base is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise bad
+        return value
+    if base is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise bad
+        return float(value)
+    if base is str:
+        if not isinstance(value, str):
+            raise bad
+        return value
+    if typing.get_origin(base) is tuple:
+        if not isinstance(value, list | tuple):
+            raise bad
+        (elem,) = [a for a in typing.get_args(base) if a is not Ellipsis]
+        return tuple(_coerce(v, elem, f"{path}[{i}]") for i, v in enumerate(value))
+    if is_dataclass(base):
+        if isinstance(value, base):
+            return value
+        if isinstance(value, dict):
+            return _from_dict(base, value, path)
+        raise bad
+    raise bad  # pragma: no cover - every field type is handled above
+
+
+def _walk(cfg, parts: list[str], path: str):
+    obj = cfg
+    for p in parts:
+        if not is_dataclass(obj) or p not in {f.name for f in fields(obj)}:
+            names = ", ".join(f.name for f in fields(obj)) if is_dataclass(obj) else "none"
+            raise InvalidInputError(f"unknown config field {path!r} (at {p!r}; fields: {names})")
+        obj = getattr(obj, p)
+    return obj
+
+
+def with_overrides(cfg, overrides: dict[str, Any]):
+    """A copy of ``cfg`` with dotted-path fields replaced, type-checked.
+
+    Parameters
+    ----------
+    cfg : a config dataclass (usually :class:`EasyHOIConfig`)
+    overrides : dict
+        ``{"optim.refine.max_iters": 50, "optim.camera.use_sinkhorn": False, ...}``. ints are
+        accepted for float fields, lists for tuple fields; the value checks of each dataclass
+        run again on the new values.
+
+    Raises
+    ------
+    InvalidInputError
+        Unknown path, wrong type, or a value outside its allowed range.
+    """
+    for path, value in overrides.items():
+        parts = path.split(".")
+        parent = _walk(cfg, parts[:-1], path)
+        leaf = parts[-1]
+        if not is_dataclass(parent) or leaf not in {f.name for f in fields(parent)}:
+            names = ", ".join(f.name for f in fields(parent)) if is_dataclass(parent) else "none"
+            raise InvalidInputError(f"unknown config field {path!r} (fields here: {names})")
+        new = _coerce(value, _hints(type(parent))[leaf], path)
+        cfg = _set(cfg, parts, new)
+    return cfg
+
+
+def _set(obj, parts: list[str], value):
+    if len(parts) == 1:
+        return replace(obj, **{parts[0]: value})
+    child = getattr(obj, parts[0])
+    return replace(obj, **{parts[0]: _set(child, parts[1:], value)})
+
+
+def parse_overrides(items: list[str], cfg=None) -> dict[str, Any]:
+    """Parse CLI-style ``"path=value"`` strings into a dict for :func:`with_overrides`.
+
+    Values are read as JSON (``50``, ``1e-3``, ``true``, ``null``, ``[20, 60]``); a value that
+    is not valid JSON is taken as a string (``optim.dtype=float64``).
+    """
+    out: dict[str, Any] = {}
+    for item in items:
+        if "=" not in item:
+            raise InvalidInputError(f"override {item!r} must look like path=value")
+        key, raw = item.split("=", 1)
+        try:
+            value = json.loads(raw)
+        except json.JSONDecodeError:
+            value = raw
+        out[key.strip()] = value
+    if cfg is not None:
+        with_overrides(cfg, out)  # validate now, with the offending item named
+    return out
+
+
+def to_dict(cfg) -> dict[str, Any]:
+    """JSON-ready nested dict of a config (tuples become lists)."""
+    out = {}
+    for f in fields(cfg):
+        v = getattr(cfg, f.name)
+        if is_dataclass(v):
+            v = to_dict(v)
+        elif isinstance(v, tuple):
+            v = list(v)
+        out[f.name] = v
+    return out
+
+
+def _from_dict(cls, data: dict, path: str):
+    if not isinstance(data, dict):
+        raise InvalidInputError(f"config section {path or cls.__name__!r} must be a mapping")
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise InvalidInputError(
+            f"unknown config field(s) {unknown} in {path or cls.__name__}; "
+            f"fields: {', '.join(sorted(known))}"
+        )
+    hints = _hints(cls)
+    kw = {k: _coerce(v, hints[k], f"{path}.{k}" if path else k) for k, v in data.items()}
+    return cls(**kw)
+
+
+def from_dict(data: dict, cls=EasyHOIConfig):
+    """Rebuild a config from :func:`to_dict` output; missing fields take their defaults."""
+    return _from_dict(cls, data, "")
+
+
+@cache
+def field_docs(cls) -> dict[str, str]:
+    """Attribute docstrings of a config dataclass: ``{field name: text}`` (for CLI help)."""
+    if not dataclasses.is_dataclass(cls):
+        raise InvalidInputError(f"{cls!r} is not a config dataclass")
+    tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    body = tree.body[0].body  # type: ignore[attr-defined]
+    docs: dict[str, str] = {}
+    for node, nxt in zip(body, body[1:], strict=False):
+        if (
+            isinstance(node, ast.AnnAssign)
+            and isinstance(node.target, ast.Name)
+            and isinstance(nxt, ast.Expr)
+            and isinstance(nxt.value, ast.Constant)
+            and isinstance(nxt.value.value, str)
+        ):
+            docs[node.target.id] = " ".join(nxt.value.value.split())
+    return docs
