@@ -33,14 +33,20 @@ def test_identical_meshes_give_zero_and_perfect_fscore():
 
 
 def test_plane_shifted_along_normal_gives_two_d_squared():
-    # Two parallel 10 cm squares d = 1 cm apart: every nearest distance is d (plus the in-plane
-    # nearest-sample offset, E[r^2] = 1 / (pi * density) ~ 1e-3 cm^2 at 30k samples / 100 cm^2).
+    # Two parallel 10 cm squares d = 1 cm apart: every nearest distance is d. Both meshes are
+    # sampled with the same seed and have the same triangle areas, so the in-plane positions
+    # coincide and raw C.D. = d^2 + d^2 up to rounding.
     d_cm = 1.0
     gt = _plane()
     pred = _shifted(gt, [0, 0, d_cm / 100])
     raw = chamfer_fscore(pred, gt, align="none", convention="raw")
-    lateral = 2 * 1 / (math.pi * 30000 / 100.0)  # cm^2, both directions
-    assert raw.chamfer == pytest.approx(2 * d_cm**2 + lateral, rel=0.01)
+    assert raw.chamfer == pytest.approx(2 * d_cm**2, rel=1e-9)
+    # independent samples add the in-plane nearest-sample offset, E[r^2] = 1 / (pi * density)
+    # (the same square triangulated along the other diagonal gives independent samples)
+    other_diag = trimesh.Trimesh(gt.vertices, [[0, 1, 3], [1, 2, 3]], process=False)
+    other = chamfer_fscore(pred, other_diag, align="none", convention="raw")
+    lateral = 2 / (math.pi * 30000 / 100.0)  # cm^2, both directions: 0.0021
+    assert other.chamfer - 2 * d_cm**2 == pytest.approx(lateral, abs=3e-4)
     moho = chamfer_fscore(pred, gt, align="none", convention="moho")
     assert moho.chamfer == pytest.approx(raw.chamfer / 10, rel=1e-12)
     assert moho.alignment.mode == "none" and moho.n_samples == 30000
