@@ -131,8 +131,13 @@ def signed_distance_2d(mask: np.ndarray) -> np.ndarray:
     return np.where(mask, inside, -outside)
 
 
-def _finish(verts_px: np.ndarray, faces: np.ndarray, meta: dict) -> trimesh.Trimesh:
-    """Pixel-unit vertices -> canonical unit-extent mesh; closed, outward, checked."""
+def canonical_mesh(verts_px: np.ndarray, faces: np.ndarray, meta: dict) -> trimesh.Trimesh:
+    """(V, 3) pixel-unit (u, v, z) vertices and (F, 3) faces -> the canonical frame.
+
+    Repairs the surface if it is not closed (pymeshfix), orients it outwards, centres it on
+    its bounding box and scales it to unit max extent; ``meta`` plus ``pixels_per_unit``,
+    ``center_px`` (u, v) and ``depth_center_px`` go to ``metadata["easyhoi"]``.
+    """
     mesh = trimesh.Trimesh(verts_px, faces, process=True)
     if not (mesh.is_watertight and mesh.is_winding_consistent):
         mesh = _repair(mesh)  # TODO: swap for geometry.watertight.make_watertight
@@ -435,4 +440,4 @@ class SilhouetteReconstructor:
         else:
             verts, faces = implicit_slab_mesh(m, half_thickness_sq(m), max_faces=self.max_faces)
             meta.update(method="inflation")
-        return _finish(verts, faces, meta)
+        return canonical_mesh(verts, faces, meta)

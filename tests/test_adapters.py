@@ -1,0 +1,273 @@
+"""Large-model adapters with tiny randomly initialised models saved to a temporary folder."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from easyhoi.errors import InvalidInputError, MissingDependencyError
+from easyhoi.perception.adapters import resolve_model_dir
+from easyhoi.perception.adapters.depth import DepthObjectReconstructor, relief_mesh
+from easyhoi.perception.adapters.diffusion import DiffusionInpainter
+from easyhoi.perception.adapters.sam import SamAmodalSegmenter, prompts_from_mask
+
+
+def disk_mask(shape=(60, 80), center=(40, 30), radius=20) -> np.ndarray:
+    m = np.zeros(shape, np.uint8)
+    cv2.circle(m, center, radius, 1, -1)
+    return m.astype(bool)
+
+
+def photo(shape=(60, 80), seed=0) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 256, (*shape, 3), dtype=np.uint8)
+
+
+# ----------------------------------------------------------------------------------------------
+# no dependency needed
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "cls, module, extra",
+    [
+        (SamAmodalSegmenter, "transformers", "sam"),
+        (DepthObjectReconstructor, "transformers", "depth"),
+        (DiffusionInpainter, "diffusers", "diffusion"),
+    ],
+)
+def test_missing_dependency_names_the_extra(monkeypatch, tmp_path, cls, module, extra):
+    monkeypatch.setitem(sys.modules, module, None)  # makes the import fail
+    with pytest.raises(MissingDependencyError, match=rf"easyhoi\[{extra}\]"):
+        cls(model_dir=tmp_path)
+
+
+def test_resolve_model_dir(tmp_path):
+    with pytest.raises(InvalidInputError, match="not found"):
+        resolve_model_dir(tmp_path / "nope", "SAM")
+    with pytest.raises(InvalidInputError, match="model_dir"):
+        resolve_model_dir(None, "SAM")
+    with pytest.raises(InvalidInputError, match="config.json"):
+        resolve_model_dir(tmp_path, "SAM", marker="config.json")
+    (tmp_path / "config.json").write_text("{}")
+    assert resolve_model_dir(tmp_path, "SAM", marker="config.json") == tmp_path
+
+
+def test_prompts_from_mask_one_point_per_part():
+    m = np.zeros((50, 100), bool)
+    m[10:40, 5:40] = True
+    m[10:40, 60:95] = True  # the hand splits the object in two
+    pts, box = prompts_from_mask(m, margin=0.1)
+    assert pts.shape == (2, 2)
+    for u, v in pts:
+        assert m[int(v), int(u)]
+    assert {int(u) < 50 for u, _ in pts} == {True, False}
+    assert box == pytest.approx((0.0, 7.0, 100.0, 43.0))
+
+
+def test_relief_mesh_sphere_front_gives_sphere():
+    m = disk_mask((120, 120), (60, 60), 40)
+    v, u = np.mgrid[0:120, 0:120] + 0.5
+    r = np.sqrt(m.sum() / np.pi)
+    rho2 = (u - 60.5) ** 2 + (v - 60.5) ** 2
+    front = -np.sqrt(np.maximum(r**2 - rho2, 0))  # depth: the centre is closest
+    mesh = relief_mesh(m, front, kind="depth", depth_scale=1.0)
+    assert mesh.is_watertight and mesh.volume > 0
+    s = mesh.metadata["easyhoi"]["pixels_per_unit"]
+    assert mesh.volume * s**3 == pytest.approx(4 / 3 * np.pi * r**3, rel=0.06)
+    assert mesh.extents * s == pytest.approx([2 * r, 2 * r, 2 * r], rel=0.05)
+    # the same surface given as disparity (closer = larger) is the same mesh
+    again = relief_mesh(m, -front, kind="disparity", depth_scale=1.0)
+    np.testing.assert_allclose(again.vertices, mesh.vertices, atol=1e-9)
+
+
+def test_relief_mesh_tilted_front_shears_the_solid():
+    m = disk_mask((100, 100), (50, 50), 30)
+    v, u = np.mgrid[0:100, 0:100] + 0.5
+    flat = relief_mesh(m, np.zeros((100, 100)), kind="depth")
+    tilt = relief_mesh(m, (u - 50.0) * 0.5, kind="depth", depth_scale=1.0)
+    assert tilt.is_watertight and flat.is_watertight
+    # z spans [F, F + 2h] with F = x / 2: from -r/2 (left rim) to max(x/2 + 2 sqrt(r^2 - x^2))
+    r = np.sqrt(m.sum() / np.pi)
+    x = np.linspace(-r, r, 10001)
+    expected = (0.5 * x + 2 * np.sqrt(r**2 - x**2)).max() + 0.5 * r
+    s_t, s_f = (mesh.metadata["easyhoi"]["pixels_per_unit"] for mesh in (tilt, flat))
+    assert tilt.extents[2] * s_t == pytest.approx(expected, rel=0.03)
+    assert flat.extents[2] * s_f == pytest.approx(2 * r, rel=0.03)
+    nearest = tilt.vertices[np.argmin(tilt.vertices[:, 2])]
+    assert nearest[0] < -0.3  # the left rim is closest to the camera
+    with pytest.raises(InvalidInputError):
+        relief_mesh(m, np.zeros((10, 10)))
+    with pytest.raises(InvalidInputError):
+        relief_mesh(m, np.zeros((100, 100)), kind="height")
+
+
+# ----------------------------------------------------------------------------------------------
+# tiny models (transformers / diffusers)
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sam_dir(tmp_path_factory):
+    tf = pytest.importorskip("transformers", reason="transformers not installed (extra 'sam')")
+    import torch
+    from transformers.models.sam import configuration_sam as cs
+
+    vc = cs.SamVisionConfig(
+        hidden_size=32, num_hidden_layers=2, num_attention_heads=2, mlp_dim=64,
+        output_channels=16, image_size=64, patch_size=8, global_attn_indexes=[1],
+        window_size=4, num_pos_feats=8,
+    )  # fmt: skip
+    pc = cs.SamPromptEncoderConfig(hidden_size=16, image_size=64, patch_size=8)
+    mc = cs.SamMaskDecoderConfig(
+        hidden_size=16, num_hidden_layers=2, num_attention_heads=2, mlp_dim=32,
+        iou_head_hidden_dim=16,
+    )  # fmt: skip
+    cfg = tf.SamConfig(
+        vision_config=vc.to_dict(),
+        prompt_encoder_config=pc.to_dict(),
+        mask_decoder_config=mc.to_dict(),
+    )
+    torch.manual_seed(0)
+    folder = tmp_path_factory.mktemp("sam")
+    tf.SamModel(cfg).save_pretrained(folder)
+    ip = tf.SamImageProcessor(size={"longest_edge": 64}, pad_size={"height": 64, "width": 64})
+    tf.SamProcessor(image_processor=ip).save_pretrained(folder)
+    return folder
+
+
+def test_sam_adapter_mask_matches_image(sam_dir):
+    from easyhoi.perception.base import create
+
+    seg = create("amodal", "sam", model_dir=sam_dir)
+    img, vis = photo(), disk_mask()
+    pts, box = prompts_from_mask(vis)
+    mask = seg.segment(img, pts, box, vis)
+    assert mask.shape == (60, 80) and mask.dtype == bool
+    assert seg.last_scores.shape == (3,)
+    again = seg.segment(img, None, None, vis)  # prompts derived from the visible mask
+    np.testing.assert_array_equal(mask, again)
+    with pytest.raises(InvalidInputError, match="box"):
+        seg.segment(img, pts, (10, 10, 5, 20), vis)
+    with pytest.raises(InvalidInputError, match="image"):
+        seg.segment(img, pts, box, vis[:10])
+
+
+def test_sam_adapter_missing_folder(sam_dir, tmp_path):
+    with pytest.raises(InvalidInputError, match="not found"):
+        SamAmodalSegmenter(model_dir=tmp_path / "missing")
+
+
+@pytest.fixture(scope="module")
+def depth_dir(tmp_path_factory):
+    tf = pytest.importorskip("transformers", reason="transformers not installed (extra 'depth')")
+    import torch
+
+    cfg = tf.DPTConfig(
+        hidden_size=32, num_hidden_layers=4, num_attention_heads=2, intermediate_size=37,
+        image_size=32, patch_size=8, backbone_out_indices=[0, 1, 2, 3],
+        neck_hidden_sizes=[8, 16, 16, 32], fusion_hidden_size=16,
+        reassemble_factors=[4, 2, 1, 0.5],
+    )  # fmt: skip
+    torch.manual_seed(0)
+    folder = tmp_path_factory.mktemp("dpt")
+    tf.DPTForDepthEstimation(cfg).save_pretrained(folder)
+    tf.DPTImageProcessor(size={"height": 32, "width": 32}, keep_aspect_ratio=False).save_pretrained(
+        folder
+    )
+    return folder
+
+
+def test_depth_adapter_closed_mesh(depth_dir):
+    from easyhoi.perception.base import create
+
+    rec = create("object", "depth", model_dir=depth_dir)
+    img, m = photo(), disk_mask()
+    pred = rec.predict(img)
+    assert pred.shape == (60, 80) and np.isfinite(pred).all()
+    mesh = rec.reconstruct(img, m)
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+    assert mesh.metadata["easyhoi"]["method"] == "depth"
+    assert mesh.extents.max() == pytest.approx(1.0)
+    with pytest.raises(InvalidInputError):
+        rec.reconstruct(img, m[:, :10])
+    with pytest.raises(InvalidInputError, match="not found"):
+        DepthObjectReconstructor(model_dir=depth_dir / "missing")
+
+
+def _tiny_tokenizer(folder):
+    from transformers import CLIPTokenizer
+
+    letters = "abcdefghijklmnopqrstuvwxyz,"
+    vocab = {"<|startoftext|>": 0, "<|endoftext|>": 1}
+    for suffix in ("", "</w>"):
+        for c in letters:
+            vocab[c + suffix] = len(vocab)
+    (folder / "vocab.json").write_text(json.dumps(vocab))
+    (folder / "merges.txt").write_text("#version: 0.2\n")
+    tok = CLIPTokenizer(
+        vocab_file=str(folder / "vocab.json"),
+        merges_file=str(folder / "merges.txt"),
+        model_max_length=16,
+    )
+    return tok, len(vocab)
+
+
+@pytest.fixture(scope="module")
+def inpaint_dir(tmp_path_factory):
+    pytest.importorskip("transformers", reason="transformers not installed (extra 'diffusion')")
+    diffusers = pytest.importorskip("diffusers", reason="diffusers not installed ('diffusion')")
+    import torch
+    from transformers import CLIPTextConfig, CLIPTextModel
+
+    tokdir = tmp_path_factory.mktemp("tok")
+    tok, n_vocab = _tiny_tokenizer(tokdir)
+    torch.manual_seed(0)
+    unet = diffusers.UNet2DConditionModel(
+        block_out_channels=(8, 16), layers_per_block=1, sample_size=16, in_channels=9,
+        out_channels=4, down_block_types=("DownBlock2D", "CrossAttnDownBlock2D"),
+        up_block_types=("CrossAttnUpBlock2D", "UpBlock2D"), cross_attention_dim=16,
+        attention_head_dim=4, norm_num_groups=4,
+    )  # fmt: skip
+    vae = diffusers.AutoencoderKL(
+        block_out_channels=[8, 16], in_channels=3, out_channels=3, latent_channels=4,
+        down_block_types=["DownEncoderBlock2D"] * 2, up_block_types=["UpDecoderBlock2D"] * 2,
+        norm_num_groups=4, sample_size=32,
+    )  # fmt: skip
+    text = CLIPTextModel(
+        CLIPTextConfig(
+            bos_token_id=0, eos_token_id=1, pad_token_id=1, hidden_size=16,
+            intermediate_size=32, num_attention_heads=2, num_hidden_layers=2,
+            vocab_size=n_vocab, max_position_embeddings=16,
+        )
+    )  # fmt: skip
+    pipe = diffusers.StableDiffusionInpaintPipeline(
+        unet=unet, vae=vae, text_encoder=text, tokenizer=tok,
+        scheduler=diffusers.DDIMScheduler(steps_offset=1), safety_checker=None,
+        feature_extractor=None, requires_safety_checker=False,
+    )  # fmt: skip
+    folder = tmp_path_factory.mktemp("inpaint")
+    pipe.save_pretrained(folder)
+    return folder
+
+
+def test_diffusion_inpainter_fills_only_the_mask(inpaint_dir):
+    from easyhoi.perception.base import create
+
+    inp = create("inpainter", "diffusion", model_dir=inpaint_dir, steps=2, resolution=32)
+    assert inp.size_multiple == 4  # VAE factor 2 x one UNet down-sampling
+    assert inp.working_size(80, 60) == (32, 24)
+    img, m = photo(), disk_mask(radius=12)
+    out = inp.inpaint(img, m)
+    assert out.shape == img.shape and out.dtype == np.uint8
+    np.testing.assert_array_equal(out[~m], img[~m])
+    assert (out[m] != img[m]).any()
+    np.testing.assert_array_equal(out, inp.inpaint(img, m))  # seeded
+    np.testing.assert_array_equal(inp.inpaint(img, np.zeros_like(m)), img)
+    with pytest.raises(InvalidInputError):
+        inp.inpaint(img.astype(np.float32), m)
+    with pytest.raises(InvalidInputError, match="model_index.json"):
+        DiffusionInpainter(model_dir=inpaint_dir / "unet", steps=1)
