@@ -1,4 +1,4 @@
-"""Hand / object masks, contour-guided filtering, inpainting and amodal completion on drawn scenes."""
+"""Hand and object masks, contour filtering, inpainting and amodal completion on drawn scenes."""
 
 from __future__ import annotations
 
@@ -164,11 +164,10 @@ def test_amodal_recovers_object_split_by_hand():
 
 
 def test_registry_names():
-    from easyhoi.perception import base
-
     import easyhoi.perception.amodal  # noqa: F401
     import easyhoi.perception.inpaint  # noqa: F401
     import easyhoi.perception.masks  # noqa: F401
+    from easyhoi.perception import base
 
     assert isinstance(base.create("segmenter", "classical"), ClassicalHOISegmenter)
     assert isinstance(base.create("inpainter", "opencv"), OpenCVInpainter)
