@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
 
 import cv2
@@ -43,6 +44,16 @@ def test_missing_dependency_names_the_extra(monkeypatch, tmp_path, cls, module, 
     monkeypatch.setitem(sys.modules, module, None)  # makes the import fail
     with pytest.raises(MissingDependencyError, match=rf"easyhoi\[{extra}\]"):
         cls(model_dir=tmp_path)
+
+
+def test_importing_adapters_imports_no_heavy_dependency():
+    code = (
+        "import sys, easyhoi.perception.adapters.sam, easyhoi.perception.adapters.depth, "
+        "easyhoi.perception.adapters.diffusion; "
+        "print(sorted(m for m in ('transformers', 'diffusers') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
 
 
 def test_resolve_model_dir(tmp_path):
