@@ -161,6 +161,13 @@ def test_as_bool_mask():
 def test_hoi_result_validation_and_helpers():
     res = _result()
     assert res.stage("refine").metric_scale == 0.07
+    p = res.hand_params
+    grad = HandParams(p.global_orient.clone().requires_grad_(True), p.transl, p.pose, p.betas)
+    det = HOIResult(grad, res.camera, res.hand_vertices, res.hand_faces, res.object_mesh, 1.0)
+    assert (
+        grad.global_orient.requires_grad
+        and not det.detach().hand_params.global_orient.requires_grad
+    )
     with pytest.raises(InvalidInputError, match="stages: camera, refine"):
         res.stage("contact")
     extent = res.object_mesh_metric().extents

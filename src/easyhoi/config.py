@@ -97,7 +97,8 @@ class CameraStageConfig:
     sinkhorn_weight: float = 1.0
     """Weight of the Sinkhorn mask term."""
     sinkhorn_grid: int = 32
-    """Cells per side of the coarse grid the Sinkhorn term works on (cost ~ grid^4)."""
+    """Cells per side of the coarse grid the Sinkhorn term works on. Cost grows as grid^4:
+    measured forward+backward on 2 busy CPU cores, 16 -> 0.06 s, 32 -> 1.5 s per call."""
     sinkhorn_blur: float = 0.05
     """Entropic blur of the Sinkhorn term, in image-normalised units (long side = 1)."""
     sinkhorn_scaling: float = 0.8

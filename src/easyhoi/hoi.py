@@ -359,6 +359,15 @@ class HOIResult:
         for k in ("timings", "config", "plausibility", "meta"):
             object.__setattr__(self, k, _check_json(getattr(self, k), k))
 
+    def detach(self) -> HOIResult:
+        """A copy whose tensors (params, camera, stage snapshots) carry no autograd graph."""
+        return replace(
+            self,
+            hand_params=self.hand_params.detach(),
+            camera=self.camera.detach(),
+            stages=tuple(s.detach() for s in self.stages),
+        )
+
     def stage(self, name: str) -> StageResult:
         """The snapshot of the stage called ``name``."""
         for s in self.stages:
