@@ -38,7 +38,8 @@ def as_faces(faces, num_vertices: int, name: str = "faces") -> torch.Tensor:
     """Validate faces: (F, 3) integers in ``[0, V)``; returns a long tensor."""
     if not isinstance(faces, torch.Tensor):
         faces = torch.as_tensor(np.asarray(faces))
-    if faces.is_floating_point() or faces.dtype == torch.bool or faces.is_complex():
+    bad_dtype = faces.is_floating_point() or faces.dtype == torch.bool or faces.is_complex()
+    if bad_dtype and faces.numel():  # an empty (0, 3) array of any dtype is an empty mesh
         raise InvalidInputError(f"{name} must hold integers, got dtype {faces.dtype}")
     faces = faces.long()
     check_faces(faces, num_vertices, name)

@@ -239,3 +239,32 @@ def peel_pixels(
     ids, depth, bary, points = _fragments(v, f, camera, near, num_layers, candidates, N)
     K = num_layers
     return Fragments(ids.view(N, K), depth.view(N, K), bary.view(N, K, 3), points.view(N, K, 3))
+
+
+@torch.no_grad()
+def depth_map(verts, faces, camera: Camera, near: float = 1e-3) -> torch.Tensor:
+    """Z-buffer only (no gradients, no sort): the nearest hit's camera z per pixel.
+
+    Args:
+        verts: (V, 3) world-space vertices.
+        faces: (F, 3) integer vertex indices.
+        camera: the camera.
+        near: faces with a vertex at camera z < ``near`` are dropped.
+
+    Returns:
+        (H, W) camera z of the nearest surface, ``inf`` where the ray misses. Equals
+        ``rasterize(...).depth[..., 0]``.
+    """
+    v, f, camera, near = _prepare(verts, faces, camera, near, 1)
+    H, W = camera.height, camera.width
+    out = torch.full((H * W,), float("inf"), dtype=camera.K.dtype, device=camera.K.device)
+    if v.shape[1] and f.shape[0]:
+        tri_uv, tri_z, _ = project_faces(v, f, camera, near)
+        face, pix = bbox_pairs(tri_uv, H, W, 0.0)
+        p = pixel_uv(pix, W, H, tri_uv.dtype)
+        tri = tri_uv[face]
+        hit = _inside(tri, p)
+        face, pix, p, tri = face[hit], pix[hit], p[hit], tri[hit]
+        d, _, _ = _interp(tri, tri_z[face], None, p)
+        out.scatter_reduce_(0, pix, d, reduce="amin")
+    return out.view(H, W)

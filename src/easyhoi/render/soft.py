@@ -60,62 +60,97 @@ def cull_margin(sigma: float, cull_eps: float = DEFAULT_CULL_EPS) -> float:
     return math.sqrt(sigma * math.log(1.0 / cull_eps))
 
 
-def _pair_terms(tri: torch.Tensor, p: torch.Tensor, sigma: float):
-    """Per-pair ``x = delta d^2 / sigma`` and the closest boundary point data.
+def _pair_kernel(X: torch.Tensor, Y: torch.Tensor, px: torch.Tensor, py: torch.Tensor, inv_sigma):
+    """Per-pair coverage terms (elementwise over pairs; the leading 3 indexes corners/edges).
 
     Args:
-        tri: (P, 3, 2) triangle corners per pair.
-        p: (P, 2) pixel centres.
+        X, Y: (3, P) corner coordinates per pair; edge k runs from corner k to (k + 1) % 3.
+        px, py: (P,) pixel centre.
+        inv_sigma: 1 / sigma.
+
     Returns:
-        x: (P,), r: (P, 2) ``p - closest``, t: (P,) edge parameter, k: (P,) closest edge
-        (edge k runs from corner k to corner (k + 1) % 3), delta: (P,) +-1.
+        val: (P,) ``log(1 - D) = logsigmoid(-x)``, ``x = delta * d^2 / sigma``.
+        coef: (P,) ``-2 d val / d d^2``, so that ``d val / d corner = -coef * r * weight``.
+        rx, ry: (P,) ``p - q`` with ``q`` the closest boundary point, on edge ``k`` (P,) long at
+            parameter ``t`` (P,): ``q = (1 - t) start + t end``.
     """
-    a = tri
-    e = torch.roll(tri, shifts=-1, dims=1) - a  # (P, 3, 2) edge vectors
-    w = p.unsqueeze(1) - a  # (P, 3, 2)
-    ee = (e * e).sum(-1).clamp(min=1e-30)
-    t = ((w * e).sum(-1) / ee).clamp(0.0, 1.0)  # (P, 3)
-    r = w - t.unsqueeze(-1) * e
-    d2 = (r * r).sum(-1)
-    d2min, k = d2.min(dim=1)
-    cross = e[..., 0] * w[..., 1] - e[..., 1] * w[..., 0]  # (P, 3)
-    inside = (cross >= 0).all(dim=1) | (cross <= 0).all(dim=1)
-    delta = inside.to(tri.dtype) * 2.0 - 1.0
-    x = delta * d2min / sigma
-    kk = k.unsqueeze(1)
-    r_k = r.gather(1, kk.unsqueeze(-1).expand(-1, 1, 2)).squeeze(1)
-    t_k = t.gather(1, kk).squeeze(1)
-    return x, r_k, t_k, k, delta
+    EX = torch.roll(X, -1, 0) - X
+    EY = torch.roll(Y, -1, 0) - Y
+    WX = px - X
+    WY = py - Y
+    T = ((WX * EX + WY * EY) / (EX * EX + EY * EY).clamp(min=1e-30)).clamp(0.0, 1.0)
+    RX = WX - T * EX
+    RY = WY - T * EY
+    d2, k = (RX * RX + RY * RY).min(dim=0)
+    CR = EX * WY - EY * WX
+    inside = (CR >= 0).all(dim=0) | (CR <= 0).all(dim=0)
+    sgn = inside.to(X.dtype) * 2.0 - 1.0
+    x = sgn * d2 * inv_sigma
+    val = torch.nn.functional.logsigmoid(-x)
+    coef = torch.sigmoid(x) * sgn * (2.0 * inv_sigma)
+    kk = k.unsqueeze(0)
+    return val, coef, RX.gather(0, kk)[0], RY.gather(0, kk)[0], T.gather(0, kk)[0], k
+
+
+_COMPILED: dict[str, object] = {}
+
+
+def set_compile(enabled: bool) -> None:
+    """Use ``torch.compile`` (inductor, ``dynamic=True``) for the per-pair kernel, or eager.
+
+    Off by default: the first call pays a compilation (about 10-60 s, cached on disk by
+    inductor afterwards) that only a long optimization recovers; with it the kernel runs
+    several times faster (see docs/rendering.md). Pair counts vary every call, so the kernel
+    is compiled with dynamic shapes and never recompiles for a new count. If compilation fails
+    (no C++ compiler, ...) a warning is issued and the eager kernel is used.
+    """
+    if enabled:
+        _COMPILED.setdefault("kernel", torch.compile(_pair_kernel, dynamic=True))
+    else:
+        _COMPILED.pop("kernel", None)
+
+
+def _run_kernel(*args):
+    fn = _COMPILED.get("kernel")
+    if fn is not None:
+        try:
+            return fn(*args)
+        except Exception as exc:  # noqa: BLE001 - any backend failure falls back to eager
+            import warnings
+
+            warnings.warn(
+                f"torch.compile of the soft kernel failed ({exc}); using eager", stacklevel=3
+            )
+            _COMPILED.pop("kernel", None)
+    return _pair_kernel(*args)
 
 
 class _SoftLogSum(torch.autograd.Function):
     """Per-pixel ``sum_T log(1 - D_T)`` over culled pairs, with an analytic backward."""
 
     @staticmethod
-    def forward(ctx, tri_uv, face, pix, p, sigma: float, num_pix: int):
-        tri = tri_uv[face]
-        x, r, t, k, delta = _pair_terms(tri, p, sigma)
-        val = torch.nn.functional.logsigmoid(-x)
+    def forward(ctx, tri_uv, face, pix, px, py, sigma: float, num_pix: int):
+        comps = tri_uv.reshape(-1, 6).t().contiguous()[:, face]  # (6, P): ax ay bx by cx cy
+        val, coef, rx, ry, t, k = _run_kernel(comps[0::2], comps[1::2], px, py, 1.0 / sigma)
         out = torch.zeros(num_pix, dtype=tri_uv.dtype, device=tri_uv.device)
         out.index_add_(0, pix, val)
-        # d val / d d2 = -sigmoid(x) * delta / sigma ; d d2 / d a = -2 r (1 - t), d b = -2 r t
-        coef = torch.sigmoid(x) * delta * (2.0 / sigma)
-        ctx.save_for_backward(face, pix, coef, r, t, k.to(torch.uint8))
+        ctx.save_for_backward(face, pix, coef, rx, ry, t, k.to(torch.uint8))
         ctx.num_faces = tri_uv.shape[0]
         return out
 
     @staticmethod
     def backward(ctx, grad_out):
-        face, pix, coef, r, t, k = ctx.saved_tensors
-        s = (grad_out[pix] * coef).unsqueeze(1)  # (P, 1)
-        ga = s * (1.0 - t).unsqueeze(1) * r  # gradient w.r.t. the edge's start corner
-        gb = s * t.unsqueeze(1) * r  # ... and its end corner
-        k = k.long()
-        n = ctx.num_faces
-        grad = torch.zeros(n * 3, 2, dtype=coef.dtype, device=coef.device)
-        grad.index_add_(0, face * 3 + k, ga)
-        grad.index_add_(0, face * 3 + (k + 1) % 3, gb)
-        return grad.view(n, 3, 2), None, None, None, None, None
+        face, pix, coef, rx, ry, t, k = ctx.saved_tensors
+        # d val / d start = coef (1 - t) r, d val / d end = coef t r  (envelope theorem)
+        s = grad_out[pix] * coef
+        n3 = ctx.num_faces * 3
+        start = face * 3 + k
+        end = face * 3 + torch.remainder(k + 1, 3)
+        grad = torch.zeros(n3, 2, dtype=s.dtype, device=s.device)
+        for idx, w in ((start, s * (1.0 - t)), (end, s * t)):
+            grad[:, 0] += torch.bincount(idx, weights=w * rx, minlength=n3).to(s.dtype)
+            grad[:, 1] += torch.bincount(idx, weights=w * ry, minlength=n3).to(s.dtype)
+        return grad.view(-1, 3, 2), None, None, None, None, None, None
 
 
 def soft_silhouette(
@@ -182,7 +217,8 @@ def soft_log_visibility(
         face, pix = bbox_pairs(tri_uv, H, W, cull_margin(sigma, cull_eps))
         pix = pix + torch.div(keep[face], F, rounding_mode="floor") * (H * W)
         p = pixel_uv(pix, W, H, dtype)
-        logs = _SoftLogSum.apply(tri_uv, face, pix, p, sigma, B * H * W).view(B, H, W)
+        logs = _SoftLogSum.apply(tri_uv, face, pix, p[:, 0], p[:, 1], sigma, B * H * W)
+        logs = logs.view(B, H, W)
     sil = -torch.expm1(logs)
     if not batched:
         return sil[0], logs[0]

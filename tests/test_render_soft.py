@@ -1,0 +1,178 @@
+"""Soft silhouettes: culled renderer vs the dense reference, gradients, culling, bad input."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from easyhoi.errors import InvalidInputError
+from easyhoi.render._common import bbox_pairs, project_faces
+from easyhoi.render.reference import dense_soft_silhouette
+from easyhoi.render.soft import cull_margin, sigma_from_ndc, soft_log_visibility, soft_silhouette
+from easyhoi.structures import Camera
+from tests.helpers import assert_close
+
+F64 = torch.float64
+
+
+def _sphere(sub=2, radius=1.0, dtype=F64):
+    m = trimesh.creation.icosphere(sub, radius=radius)
+    v = torch.tensor(m.vertices * [1.0, 0.8, 0.9], dtype=dtype)
+    return v, torch.tensor(m.faces)
+
+
+def _cam(w=40, h=32, focal=30.0, dtype=F64):
+    return Camera.look_at((0.4, 0.3, -3.0), (0, 0, 0), focal=focal, width=w, height=h, dtype=dtype)
+
+
+def test_culled_matches_dense_value_and_gradient():
+    v, f = _sphere()
+    cam = _cam()
+    w = torch.randn(cam.height, cam.width, dtype=F64)
+    for sigma in (0.5, 2.0):
+        va = v.clone().requires_grad_(True)
+        vb = v.clone().requires_grad_(True)
+        a = soft_silhouette(va, f, cam, sigma=sigma)
+        b = dense_soft_silhouette(vb, f, cam, sigma=sigma)
+        assert a.shape == (cam.height, cam.width)
+        assert 50 < float((a > 0.5).sum()) < a.numel()  # the sphere is in view, not filling it
+        assert_close(a, b, atol=1e-5)
+        (ga,) = torch.autograd.grad((a * w).sum(), va)
+        (gb,) = torch.autograd.grad((b * w).sum(), vb)
+        assert float(gb.abs().max()) > 1.0
+        assert_close(ga, gb, atol=1e-5)
+
+
+def test_culled_matches_dense_camera_gradient_float32():
+    v, f = _sphere(dtype=torch.float32)
+    K = torch.tensor([[30.0, 0, 20], [0, 32.0, 16], [0, 0, 1]], requires_grad=True)
+    t = torch.tensor([0.1, -0.05, 3.0], requires_grad=True)
+    R = torch.eye(3, requires_grad=True)
+    cam = Camera(K, R, t, 40, 32)
+    w = torch.randn(32, 40)
+    grads = []
+    for fn in (soft_silhouette, dense_soft_silhouette):
+        out = fn(v, f, cam, sigma=1.0)
+        grads.append(torch.autograd.grad((out * w).sum(), (K, R, t)))
+    for ga, gb in zip(*grads, strict=True):
+        assert_close(ga, gb, atol=1e-3, rtol=1e-4)  # float32 sums over ~1k pixels
+
+
+def test_gradcheck_vertices_and_camera():
+    v = torch.tensor(
+        [[0.0, 0.0, 0.3], [0.9, 0.1, 0.0], [0.1, 0.8, 0.1], [-0.6, -0.5, 0.2]], dtype=F64
+    )
+    f = torch.tensor([[0, 1, 2], [0, 3, 1], [0, 2, 3]])
+    K = torch.tensor([[6.0, 0.0, 5.1], [0.0, 6.5, 4.2], [0.0, 0.0, 1.0]], dtype=F64)
+    R = torch.eye(3, dtype=F64)
+    t = torch.tensor([0.05, 0.02, 3.0], dtype=F64)
+
+    def render(v, K, R, t):
+        return soft_silhouette(v, f, Camera(K, R, t, 10, 8), sigma=0.8)
+
+    args = [x.clone().requires_grad_(True) for x in (v, K, R, t)]
+    assert torch.autograd.gradcheck(render, args, eps=1e-6, atol=1e-6)
+
+
+def test_single_edge_closed_form():
+    # a huge triangle with a vertical edge at u = 20: pixels left of it see sigmoid(-d^2/sigma)
+    cam = Camera.from_focal(10.0, 40, 8, dtype=F64)
+    z = 1.0
+    uv = torch.tensor([[20.0, -500.0], [20.0, 500.0], [520.0, 4.0]], dtype=F64)
+    v = cam.unproject(uv, torch.full((3,), z, dtype=F64))
+    sigma = 3.0
+    out = soft_silhouette(v, torch.tensor([[0, 1, 2]]), cam, sigma=sigma)
+    u = torch.arange(40, dtype=F64) + 0.5
+    d2 = (u - 20.0) ** 2
+    expected = torch.sigmoid(torch.where(u > 20, d2, -d2) / sigma)
+    assert_close(out[4], expected, atol=1e-8)  # culled terms are below cull_eps = 1e-8
+
+
+def test_batch_orientation_and_log_visibility():
+    v, f = _sphere()
+    cam = _cam()
+    vb = torch.stack([v, v * 0.5 + 0.2])
+    batch = soft_silhouette(vb, f, cam)
+    assert batch.shape == (2, cam.height, cam.width)
+    assert_close(batch[1], soft_silhouette(vb[1], f, cam), atol=1e-12)
+    assert_close(soft_silhouette(v, f.flip(1), cam), batch[0], atol=1e-12)
+    sil, logs = soft_log_visibility(v, f, cam)
+    assert torch.isfinite(logs).all()
+    assert_close(sil, -torch.expm1(logs), atol=1e-12)
+    assert_close(soft_silhouette(v, f, cam), soft_silhouette(v, f, cam), atol=0)  # deterministic
+
+
+def test_culling_evaluates_few_pairs():
+    v, f = _sphere(sub=4, radius=0.3, dtype=torch.float32)
+    cam = _cam(128, 128, focal=150.0, dtype=torch.float32)
+    tri_uv, _, _ = project_faces(v[None], f, cam, 1e-3)
+    face, pix = bbox_pairs(tri_uv, 128, 128, cull_margin(1.0))
+    dense = 128 * 128 * f.shape[0]
+    assert 0 < face.numel() < 0.01 * dense
+    # every generated pair lies inside its face's grown bounding box
+    u = (pix % 128).float() + 0.5
+    lo = tri_uv[face, :, 0].amin(1) - cull_margin(1.0)
+    hi = tri_uv[face, :, 0].amax(1) + cull_margin(1.0)
+    assert bool(((u >= lo) & (u <= hi)).all())
+
+
+def test_sigma_conversion_and_margin():
+    cam = _cam(256, 128)
+    assert math.isclose(sigma_from_ndc(1e-4, cam), 1e-4 * 128**2)
+    assert math.isclose(torch.sigmoid(torch.tensor(-cull_margin(2.0, 1e-8) ** 2 / 2.0)).item(),
+                        1e-8, rel_tol=1e-3)  # fmt: skip
+
+
+def test_faces_behind_near_plane_are_dropped():
+    v, f = _sphere()
+    cam = Camera.look_at((0, 0, -1.2), (0, 0, 0), focal=20.0, width=32, height=32, dtype=F64)
+    z = cam.world_to_camera(v)[:, 2]
+    near = 0.5
+    kept = f[(z[f] >= near).all(1)]
+    assert 0 < kept.shape[0] < f.shape[0]
+    assert_close(soft_silhouette(v, f, cam, near=near), soft_silhouette(v, kept, cam, near=near))
+
+
+def test_empty_and_behind_camera_give_zero_masks():
+    cam = _cam()
+    v, f = _sphere()
+    zero = torch.zeros(cam.height, cam.width, dtype=F64)
+    assert_close(soft_silhouette(torch.zeros(0, 3, dtype=F64), torch.zeros(0, 3), cam), zero)
+    assert_close(soft_silhouette(v, torch.zeros(0, 3, dtype=torch.long), cam), zero)
+    behind = (v + torch.tensor([0.0, 0.0, -10.0], dtype=F64)).requires_grad_(True)
+    out = soft_silhouette(behind, f, cam)
+    assert_close(out, zero, atol=0)
+    (g,) = torch.autograd.grad(out.sum(), behind, allow_unused=True)
+    assert g is None or bool((g == 0).all())
+    far = v + torch.tensor([100.0, 0.0, 0.0], dtype=F64)  # in front, outside the image
+    assert_close(soft_silhouette(far, f, cam), zero, atol=0)
+
+
+@pytest.mark.parametrize(
+    "verts, faces, kw",
+    [
+        (np.full((4, 3), np.nan), [[0, 1, 2]], {}),
+        (np.zeros((4, 3)), [[0, 1, 4]], {}),
+        (np.zeros((4, 3)), [[0, 1, -1]], {}),
+        (np.zeros((4, 3)), [[0.0, 1.0, 2.0]], {}),
+        (np.zeros((4, 2)), [[0, 1, 2]], {}),
+        (np.zeros((4, 3)), [[0, 1]], {}),
+        (np.zeros((4, 3)), [[0, 1, 2]], {"sigma": 0.0}),
+        (np.zeros((4, 3)), [[0, 1, 2]], {"near": -1.0}),
+        (np.zeros((4, 3)), [[0, 1, 2]], {"cull_eps": 2.0}),
+    ],
+)
+def test_bad_input_raises(verts, faces, kw):
+    with pytest.raises(InvalidInputError):
+        soft_silhouette(verts, faces, _cam(), **kw)
+
+
+def test_bad_camera():
+    with pytest.raises(InvalidInputError):
+        soft_silhouette(np.zeros((3, 3)), [[0, 1, 2]], "camera")
+    with pytest.raises(InvalidInputError):
+        Camera.from_focal(-5.0, 32, 32)
