@@ -24,8 +24,7 @@ def forward_kinematics(
             (``G_j @ [I | -J_j]``), ready for :func:`skin`.
     """
     B, J = joints.shape[:2]
-    rel = joints.clone()
-    rel[:, 1:] = joints[:, 1:] - joints[:, list(parents[1:])]
+    rel = torch.cat([joints[:, :1], joints[:, 1:] - joints[:, list(parents[1:])]], dim=1)
     chain_R = [rotmats[:, 0]]
     chain_t = [rel[:, 0]]
     for j in range(1, J):
@@ -36,8 +35,8 @@ def forward_kinematics(
     tg = torch.stack(chain_t, dim=1)  # (B, J, 3) = posed joint positions
     t_skin = tg - (Rg @ joints[..., None])[..., 0]
     top = torch.cat([Rg, t_skin[..., None]], dim=-1)
-    bottom = torch.zeros(B, J, 1, 4, dtype=joints.dtype, device=joints.device)
-    bottom[..., 0, 3] = 1
+    bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=joints.dtype, device=joints.device)
+    bottom = bottom.expand(B, J, 1, 4)
     return tg, torch.cat([top, bottom], dim=-2)
 
 

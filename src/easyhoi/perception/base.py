@@ -164,7 +164,17 @@ def create(role: str, name: str, **kwargs):
     return _REGISTRY[role][name](**kwargs)
 
 
-_BUILTIN_MODULES: list[str] = []  # module paths imported on first registry use
+#: Backend modules imported on first registry use (each imports its heavy dependency lazily).
+_BUILTIN_MODULES: list[str] = [
+    "easyhoi.perception.mediapipe_hand",
+    "easyhoi.perception.masks",
+    "easyhoi.perception.inpaint",
+    "easyhoi.perception.amodal",
+    "easyhoi.perception.objects",
+    "easyhoi.perception.adapters.sam",
+    "easyhoi.perception.adapters.depth",
+    "easyhoi.perception.adapters.diffusion",
+]
 
 
 def _load_builtin_backends() -> None:

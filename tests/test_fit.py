@@ -1,0 +1,134 @@
+import math
+
+import pytest
+import torch
+
+from easyhoi.errors import InvalidInputError
+from easyhoi.hand.fit import FitConfig, fit_keypoints, kabsch
+from easyhoi.structures import Camera, HandParams
+from tests.helpers import assert_close
+from tests.toy_hand import ToyHand
+
+
+def plausible_pose(batch: int, gen: torch.Generator, dtype=torch.float64) -> torch.Tensor:
+    """Flexion (about the model's z axis for fingers) with small abduction, no twist."""
+    pose = torch.zeros(batch, 15, 3, dtype=dtype)
+    flex = torch.rand(batch, 15, generator=gen, dtype=dtype) * 1.0
+    abd = (torch.rand(batch, 15, generator=gen, dtype=dtype) - 0.5) * 0.3
+    pose[..., 2] = -flex  # curl toward the palm (-y) is a rotation about -z
+    pose[..., 1] = abd * torch.tensor([1.0, 0.0, 0.0] * 5, dtype=dtype)[None]
+    return pose.reshape(batch, 45)
+
+
+def random_params(batch, gen, dtype=torch.float64):
+    go = (torch.rand(batch, 3, generator=gen, dtype=dtype) - 0.5) * 2.0
+    tr = (torch.rand(batch, 3, generator=gen, dtype=dtype) - 0.5) * 0.2
+    tr[:, 2] += 0.6
+    betas = torch.zeros(batch, 10, dtype=dtype)
+    betas[:, :2] = (torch.rand(batch, 2, generator=gen, dtype=dtype) - 0.5) * 2
+    return HandParams(go, tr, plausible_pose(batch, gen, dtype), betas)
+
+
+def test_kabsch_recovers_rotation():
+    from easyhoi.geometry.transforms import random_rotations
+
+    g = torch.Generator().manual_seed(0)
+    src = torch.randn(4, 10, 3, generator=g, dtype=torch.float64)
+    R = random_rotations(4, g)
+    t = torch.randn(4, 3, generator=g, dtype=torch.float64)
+    dst = src @ R.transpose(1, 2) + t[:, None]
+    R2, t2 = kabsch(src, dst)
+    assert_close(R2, R, atol=1e-10)
+    assert_close(t2, t, atol=1e-10)
+
+
+def test_fit_3d_round_trip_toy():
+    model = ToyHand()
+    g = torch.Generator().manual_seed(3)
+    gt = random_params(4, g)
+    target = model(gt).keypoints
+    fit = fit_keypoints(model, target)
+    assert fit.error_3d.max() < 2e-3  # below 2 mm everywhere
+    assert fit.error_3d.mean() < 5e-4
+
+
+def test_fit_2d_plus_relative_3d_recovers_placement():
+    model = ToyHand()
+    g = torch.Generator().manual_seed(5)
+    gt = random_params(2, g)
+    cam = Camera.from_focal(800.0, 640, 480, dtype=torch.float64)
+    kp = model(gt).keypoints
+    uv, _ = cam.project(kp)
+    rel = kp - kp.mean(1, keepdim=True) + 0.3  # unknown offset
+    fit = fit_keypoints(model, rel, keypoints2d=uv, camera=cam, relative_3d=True)
+    assert fit.error_2d.max() < 2.0  # pixels
+    kp_fit = fit.keypoints
+    assert (kp_fit - kp).norm(dim=-1).max() < 0.01  # placement within 1 cm at 0.6 m
+
+
+def test_fit_left_hand_round_trip():
+    model = ToyHand()
+    g = torch.Generator().manual_seed(7)
+    gt = random_params(2, g)
+    gt_left = HandParams(gt.global_orient, gt.transl, gt.pose, gt.betas, side="left")
+    target = model(gt_left).keypoints
+    fit = fit_keypoints(model, target, side="left")
+    assert fit.params.side == "left"
+    assert fit.error_3d.max() < 2e-3
+    assert_close(model(fit.params).keypoints, target, atol=2e-3)
+
+
+def test_fit_is_robust_to_one_outlier():
+    model = ToyHand()
+    g = torch.Generator().manual_seed(11)
+    gt = random_params(1, g)
+    target = model(gt).keypoints.clone()
+    target[0, 8] += torch.tensor([0.08, 0.05, 0.0], dtype=torch.float64)  # index tip way off
+    fit = fit_keypoints(model, target, config=FitConfig(robust_scale_m=0.01))
+    err = fit.error_3d[0]
+    others = torch.cat([err[:8], err[9:]])
+    assert others.median() < 3e-3
+
+
+def test_fit_rejects_bad_input():
+    model = ToyHand()
+    with pytest.raises(InvalidInputError):
+        fit_keypoints(model, torch.zeros(1, 20, 3))
+    with pytest.raises(InvalidInputError):
+        fit_keypoints(model, None)
+    with pytest.raises(InvalidInputError):
+        fit_keypoints(model, keypoints2d=torch.zeros(1, 21, 2))
+    bad = torch.zeros(1, 21, 3)
+    bad[0, 0, 0] = math.nan
+    with pytest.raises(InvalidInputError):
+        fit_keypoints(model, bad)
+
+
+def test_fit_openhand_round_trip_pose_close():
+    from easyhoi.hand.openhand import OpenHand
+    from easyhoi.hand.regions import flexion_axes
+
+    model = OpenHand(dtype=torch.float64)
+    axes = torch.as_tensor(flexion_axes(model), dtype=torch.float64)  # (15, 3), + flexes
+    g = torch.Generator().manual_seed(0)
+    B = 3
+    flex = torch.rand(B, 15, 1, generator=g, dtype=torch.float64) * 1.2
+    pose = (flex * axes[None]).reshape(B, 45)
+    go = (torch.rand(B, 3, generator=g, dtype=torch.float64) - 0.5) * 2
+    tr = torch.tensor([[0.0, 0.0, 0.5]], dtype=torch.float64).expand(B, 3)
+    betas = torch.zeros(B, 10, dtype=torch.float64)
+    betas[:, 0] = torch.tensor([-1.0, 0.0, 1.5], dtype=torch.float64)
+    gt = HandParams(go, tr, pose, betas)
+    target = model(gt).keypoints
+    fit = fit_keypoints(model, target)
+    assert fit.error_3d.max() < 2e-3  # metres
+    # pose close: per-joint rotation angle difference
+    from easyhoi.geometry.transforms import axis_angle_to_matrix
+
+    Ra = axis_angle_to_matrix(fit.params.pose.reshape(B, 15, 3).double())
+    Rb = axis_angle_to_matrix(pose.reshape(B, 15, 3))
+    cos = ((Ra.transpose(-1, -2) @ Rb).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
+    angle = torch.arccos(cos.clamp(-1, 1))
+    assert angle.mean() < 0.1  # radians, mean over joints
+    go_err = (fit.params.global_orient.double() - go).norm(dim=-1)
+    assert go_err.max() < 0.05
