@@ -1,0 +1,1 @@
+"""Synthetic hand-object scenes with exact ground truth, and perturbation models."""
