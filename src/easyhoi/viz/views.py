@@ -81,14 +81,17 @@ def _frame(meshes: list[SceneMesh], object_mesh: SceneMesh) -> tuple[np.ndarray,
     return center, radius
 
 
-def render_views(result: HOIResult, size: int = VIEW_SIZE) -> dict[str, np.ndarray]:
+def render_views(result: HOIResult, size: int | None = None) -> dict[str, np.ndarray]:
     """Shaded renders of the final hand and object from :data:`VIEW_NAMES`.
+
+    ``size`` defaults to :data:`VIEW_SIZE` (read at call time).
 
     Returns
     -------
     dict of str -> (size, size, 3) uint8
     """
     result = _check_result(result)
+    size = VIEW_SIZE if size is None else int(size)
     meshes = result_meshes(result)
     center, radius = _frame(meshes, meshes[1])
     cams = view_cameras(center, radius, result.camera, size)
@@ -96,7 +99,7 @@ def render_views(result: HOIResult, size: int = VIEW_SIZE) -> dict[str, np.ndarr
     return {k: render_shaded(meshes, cam, background=bg).image for k, cam in cams.items()}
 
 
-def views_png(result: HOIResult, size: int = VIEW_SIZE) -> bytes:
+def views_png(result: HOIResult, size: int | None = None) -> bytes:
     """One PNG with the four views side by side, titled, with a colour legend."""
     from matplotlib.patches import Patch
 

@@ -1,0 +1,243 @@
+"""One self-contained HTML page per reconstruction.
+
+The page has inline CSS only, no scripts and no external URLs: every picture is embedded as a
+``data:image/png;base64`` URI, so the file can be mailed or opened offline.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from easyhoi.errors import InvalidInputError
+from easyhoi.hoi import HOIInput, HOIResult
+from easyhoi.io.atomic import atomic_write_text
+
+__all__ = ["PICTURES", "fmt", "render_pictures", "report_html", "write_report"]
+
+#: Pictures of the report: file name -> caption.
+PICTURES = {
+    "overlay.png": "Hand (orange) and object (blue) over the photo",
+    "views.png": "Other viewpoints around the object centre",
+    "stages.png": "Stage snapshots",
+    "masks.png": "Input masks vs rendered masks",
+    "losses.png": "Loss curves",
+}
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:24px auto;
+max-width:1320px;color:#222;background:#fafafa;padding:0 16px}
+h1{font-size:1.5em;margin-bottom:.2em}h2{font-size:1.15em;border-bottom:1px solid #ccc;
+padding-bottom:3px;margin-top:1.6em}
+.sub{color:#666;margin-top:0}
+.row{display:flex;gap:16px;flex-wrap:wrap}.row figure{flex:1 1 420px}
+figure{margin:0 0 12px 0}figure img{max-width:100%;border:1px solid #ddd;background:#fff}
+figcaption{color:#555;font-size:.9em;margin-top:3px}
+table{border-collapse:collapse;margin:6px 0 12px 0;font-size:.92em;background:#fff}
+td,th{border:1px solid #ddd;padding:4px 10px;text-align:left}th{background:#f0f0f0}
+td.num{text-align:right;font-variant-numeric:tabular-nums}
+.tables{display:flex;gap:28px;flex-wrap:wrap}
+pre{background:#fff;border:1px solid #ddd;padding:8px;overflow:auto;font-size:.85em}
+"""
+
+
+def fmt(value) -> str:
+    """Format a value for the report: floats with 4 significant digits, None as "n/a"."""
+    if value is None:
+        return "n/a"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int | np.integer):
+        return str(int(value))
+    if isinstance(value, float | np.floating):
+        v = float(value)
+        return "n/a" if math.isnan(v) else f"{v:.4g}"
+    return str(value)
+
+
+def _flatten(d: Mapping, prefix: str = "") -> list[tuple[str, object]]:
+    rows = []
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            rows += _flatten(v, key + ".")
+        elif isinstance(v, list | tuple) and len(v) <= 6:
+            rows.append((key, ", ".join(fmt(x) for x in v)))
+        elif isinstance(v, list | tuple):
+            rows.append((key, f"[{len(v)} values]"))
+        else:
+            rows.append((key, v))
+    return rows
+
+
+def _table(rows, header=("name", "value")) -> str:
+    if not rows:
+        return "<p><em>none recorded</em></p>"
+    out = ["<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr>"]
+    for row in rows:
+        cells = []
+        for i, v in enumerate(row):
+            cls = ' class="num"' if i > 0 and not isinstance(v, str) else ""
+            cells.append(f"<td{cls}>{html.escape(fmt(v))}</td>")
+        out.append("<tr>" + "".join(cells) + "</tr>")
+    return "\n".join(out) + "</table>"
+
+
+def _img(data: bytes, alt: str) -> str:
+    b64 = base64.b64encode(data).decode("ascii")
+    return f'<img src="data:image/png;base64,{b64}" alt="{html.escape(alt)}">'
+
+
+def render_pictures(result: HOIResult, inp: HOIInput) -> dict[str, bytes]:
+    """PNG bytes of every picture in :data:`PICTURES` (the expensive part of a report)."""
+    from easyhoi.viz.masks import masks_png
+    from easyhoi.viz.overlay import hand_model_for, render_overlay
+    from easyhoi.viz.plots import losses_png, png_bytes
+    from easyhoi.viz.stages import stages_png
+    from easyhoi.viz.views import views_png
+
+    model = hand_model_for(result)
+    return {
+        "overlay.png": png_bytes(render_overlay(result, inp.image).image),
+        "views.png": views_png(result),
+        "stages.png": stages_png(result, inp.image, model),
+        "masks.png": masks_png(result, inp),
+        "losses.png": losses_png(result),
+    }
+
+
+def _hand_rows(result: HOIResult) -> list[tuple[str, object]]:
+    p = result.hand_params.detach().to(dtype=torch.float64)
+    pose = p.pose[0].numpy().reshape(15, 3)
+    angles = np.degrees(np.linalg.norm(pose, axis=1))
+    go = p.global_orient[0].numpy()
+    return [
+        ("hand model", result.hand_model),
+        ("side", p.side),
+        ("global orientation (axis-angle, rad)", ", ".join(fmt(float(x)) for x in go)),
+        ("global rotation angle (deg)", float(np.degrees(np.linalg.norm(go)))),
+        ("translation (m)", ", ".join(fmt(float(x)) for x in p.transl[0].numpy())),
+        ("articulation: mean joint angle (deg)", float(angles.mean())),
+        ("articulation: max joint angle (deg)", float(angles.max())),
+        ("shape betas", ", ".join(fmt(float(x)) for x in p.betas[0].numpy())),
+        ("vertices / faces", f"{len(result.hand_vertices)} / {len(result.hand_faces)}"),
+    ]
+
+
+def _camera_rows(result: HOIResult) -> list[tuple[str, object]]:
+    from easyhoi.io.export import metric_camera
+
+    cam = metric_camera(result)
+    K = cam.K.numpy()
+    center = np.asarray(result.object_mesh.bounds).mean(0) * result.metric_scale
+    dist = float(np.linalg.norm(cam.R.numpy() @ center + cam.t.numpy()))
+    fov = math.degrees(2 * math.atan(cam.height / (2 * K[1, 1])))
+    return [
+        ("image size (W x H)", f"{cam.width} x {cam.height}"),
+        ("fx, fy (px)", f"{fmt(float(K[0, 0]))}, {fmt(float(K[1, 1]))}"),
+        ("cx, cy (px)", f"{fmt(float(K[0, 2]))}, {fmt(float(K[1, 2]))}"),
+        ("vertical field of view (deg)", fov),
+        ("camera to object centre (m)", dist),
+        ("metric scale (m per object unit)", result.metric_scale),
+    ]
+
+
+def report_html(
+    result: HOIResult, inp: HOIInput, images: Mapping[str, bytes] | None = None, title: str = ""
+) -> str:
+    """The report page as a string.
+
+    Parameters
+    ----------
+    result, inp : HOIResult, HOIInput
+    images : mapping of file name -> PNG bytes, optional
+        Pictures already rendered (keys of :data:`PICTURES`); missing ones are rendered.
+    title : str
+        Shown in the heading (e.g. the photo's name); defaults to ``result.meta["image"]``.
+    """
+    from easyhoi.io.export import result_json
+    from easyhoi.viz.masks import mask_ious
+    from easyhoi.viz.plots import png_bytes
+
+    if not isinstance(result, HOIResult):
+        raise InvalidInputError(f"expected an HOIResult, got {type(result).__name__}")
+    if not isinstance(inp, HOIInput):
+        raise InvalidInputError(f"expected an HOIInput, got {type(inp).__name__}")
+    pics = dict(images or {})
+    if any(k not in pics for k in PICTURES):
+        pics = {**render_pictures(result, inp), **pics}
+    title = title or str(result.meta.get("image", "")) or "reconstruction"
+    doc = result_json(result)
+    ious = mask_ious(result, inp)
+    metric_rows = [(k, v) for k, v in _flatten(result.plausibility)]
+    metric_rows += [(f"mask IoU: {k.replace('_', ' ')}", v) for k, v in ious.items()]
+    timing_rows = [(k, v) for k, v in _flatten(result.timings)]
+    stage_rows = []
+    for st in doc["stages"]:
+        last = st["final_losses"].get("total")
+        stage_rows.append((st["name"], st["iterations"], st["seconds"], st["stop_reason"], last))
+    sub = (
+        f"hand model {result.hand_model} · seed {result.seed} · "
+        f"metric scale {fmt(result.metric_scale)} m/unit · {len(result.stages)} stages · "
+        f"easyhoi {doc['versions']['easyhoi']}"
+    )
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f"<title>EasyHOI report: {html.escape(title)}</title>",
+        f"<style>{_CSS}</style></head><body>",
+        f"<h1>EasyHOI reconstruction: {html.escape(title)}</h1>",
+        f'<p class="sub">{html.escape(sub)}</p>',
+        '<div class="row">',
+        f"<figure>{_img(png_bytes(inp.image), 'input photo')}<figcaption>Input photo"
+        "</figcaption></figure>",
+        f"<figure>{_img(pics['overlay.png'], 'overlay')}<figcaption>"
+        f"{html.escape(PICTURES['overlay.png'])}</figcaption></figure>",
+        "</div>",
+        '<div class="tables"><div><h2>Metrics</h2>',
+        _table(metric_rows, ("metric", "value")),
+        "</div><div><h2>Timings (s)</h2>",
+        _table(timing_rows, ("step", "seconds")),
+        "</div></div>",
+        "<h2>Stages</h2>",
+        _table(stage_rows, ("stage", "iterations", "seconds", "stop reason", "final total loss")),
+        '<div class="tables"><div><h2>Hand parameters</h2>',
+        _table(_hand_rows(result), ("parameter", "value")),
+        "</div><div><h2>Camera (OpenCV convention, metres)</h2>",
+        _table(_camera_rows(result), ("parameter", "value")),
+        "</div></div>",
+    ]
+    for name in ("views.png", "stages.png", "masks.png", "losses.png"):
+        cap = html.escape(PICTURES[name])
+        parts += [f"<h2>{cap}</h2>", f"<figure>{_img(pics[name], name)}</figure>"]
+    details = {"versions": doc["versions"], "config": doc["config"], "meta": doc["meta"]}
+    parts += [
+        "<h2>Versions and configuration</h2>",
+        f"<pre>{html.escape(json.dumps(details, indent=1, sort_keys=True))}</pre>",
+        "</body></html>",
+    ]
+    return "\n".join(parts) + "\n"
+
+
+def write_report(
+    result: HOIResult,
+    inp: HOIInput,
+    folder: str | Path,
+    images: Mapping[str, bytes] | None = None,
+    title: str = "",
+) -> Path:
+    """Write ``report.html`` into ``folder`` (which must exist) atomically; returns its path.
+
+    See :func:`report_html` for the arguments.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InvalidInputError(f"report folder {folder} does not exist")
+    return atomic_write_text(folder / "report.html", report_html(result, inp, images, title))
