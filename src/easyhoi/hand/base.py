@@ -99,6 +99,35 @@ class HandModel(nn.Module, ABC):
             vertices (B, V, 3) and joints (B, 16, 3) of the flat rest pose.
         """
 
+    def shaped_subset(
+        self, betas: torch.Tensor, vertex_ids: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rest-pose vertices ``vertex_ids`` (B, K, 3) and all joints (B, 16, 3).
+
+        Models with a linear shape space (buffers ``v_template`` (V, 3), ``shapedirs``
+        (V, 3, 10) and a dense ``J_regressor`` (16, V), as MANO and the open hand) get a fast
+        path that never forms all V vertices: the joints' own blend shapes are precomputed.
+        Other models fall back to :meth:`shaped`.
+        """
+        names = ("v_template", "shapedirs", "J_regressor")
+        if not all(isinstance(getattr(self, n, None), torch.Tensor) for n in names):
+            v, j = self.shaped(betas)
+            return v[:, vertex_ids], j
+        dt = betas.dtype
+        key = (dt, self.shapedirs.data_ptr())
+        cache = getattr(self, "_joint_blend", None)
+        if cache is None or cache[0] != key:
+            Jr = self.J_regressor.to(dt)
+            cache = (key, Jr @ self.v_template.to(dt),
+                     torch.einsum("jv,vck->jck", Jr, self.shapedirs.to(dt)))  # fmt: skip
+            object.__setattr__(self, "_joint_blend", cache)
+        _, j_tpl, j_dirs = cache
+        joints = j_tpl + torch.einsum("jck,bk->bjc", j_dirs, betas)
+        v = self.v_template[vertex_ids].to(dt) + torch.einsum(
+            "vck,bk->bvc", self.shapedirs[vertex_ids].to(dt), betas
+        )
+        return v, joints
+
     def pose_offsets(self, rotmats: torch.Tensor) -> torch.Tensor | None:
         """Optional pose-corrective vertex offsets (B, V, 3) from (B, 16, 3, 3) rotations."""
         return None
@@ -122,11 +151,13 @@ class HandModel(nn.Module, ABC):
         """(F, 3) faces with outward winding for a ``side`` hand."""
         return self.faces if side == "right" else self.faces[:, [0, 2, 1]]
 
-    def forward(self, params: HandParams) -> HandOutput:
+    def forward(self, params: HandParams, vertex_ids: torch.Tensor | None = None) -> HandOutput:
         """Pose the hand.
 
         Args:
             params: batched :class:`HandParams` (dtype of its tensors decides the output dtype).
+            vertex_ids: (K,) long, skin only these vertices (``vertices`` is then (B, K, 3));
+                an empty tensor skips vertex skinning (keypoint fitting needs only keypoints).
         Returns:
             :class:`HandOutput` with (B, V, 3) vertices, (B, 16, 3) joints, (B, 21, 3)
             keypoints in OpenPose order, and the side's faces.
@@ -136,17 +167,25 @@ class HandModel(nn.Module, ABC):
         side = params.side
         p = mirror_params(params) if side == "left" else params
         dtype = p.pose.dtype
-        v_rest, j_rest = self.shaped(p.betas.to(dtype))
+        betas = p.betas.to(dtype)
+        tip_ids = self.tip_vertex_ids
+        n_tips = len(tip_ids)
+        if vertex_ids is None:
+            v_rest, j_rest = self.shaped(betas)
+            ids = torch.cat([tip_ids, torch.arange(v_rest.shape[1])])
+            v_rest = v_rest[:, ids]
+        else:
+            ids = torch.cat([tip_ids, vertex_ids.to(torch.long)])
+            v_rest, j_rest = self.shaped_subset(betas, ids)
         rotmats = axis_angle_to_matrix(p.full_pose)  # (B, 16, 3, 3)
         offsets = self.pose_offsets(rotmats)
         if offsets is not None:
-            v_rest = v_rest + offsets
+            v_rest = v_rest + offsets[:, ids]
         joints, transforms = forward_kinematics(rotmats, j_rest, self.parents)
-        weights = self.skin_weights.to(dtype)
-        verts = skin(v_rest, transforms, weights)
-        verts = verts + p.transl[:, None]
+        weights = self.skin_weights.to(dtype)[ids]
+        posed = skin(v_rest, transforms, weights) + p.transl[:, None]
+        tips, verts = posed[:, :n_tips], posed[:, n_tips:]
         joints = joints + p.transl[:, None]
-        tips = verts[:, self.tip_vertex_ids]
         keypoints = torch.cat([joints, tips], dim=1)[:, list(OPENPOSE_ORDER)]
         if side == "left":
             verts, joints, keypoints = (mirror_points(x) for x in (verts, joints, keypoints))

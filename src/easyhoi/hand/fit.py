@@ -28,6 +28,8 @@ from easyhoi.geometry.transforms import axis_angle_to_matrix, matrix_to_axis_ang
 from easyhoi.hand.base import HandModel, mirror_params, mirror_points
 from easyhoi.structures import NUM_KEYPOINTS, OPENPOSE_ORDER, Camera, HandParams
 
+_NO_VERTS = torch.zeros(0, dtype=torch.long)
+
 #: Palm keypoints (OpenPose order): wrist, index/middle/ring/pinky bases; nearly rigid.
 PALM_KEYPOINTS = (0, 5, 9, 13, 17)
 
@@ -172,7 +174,7 @@ def fit_keypoints(
 
     def residuals(x: torch.Tensor, kp_weights: torch.Tensor) -> torch.Tensor:
         """(B, R) stacked, scaled residuals; ``kp_weights`` (B, 21, 2) are IRLS x confidence."""
-        kp = model(unpack(x)).keypoints
+        kp = model(unpack(x), vertex_ids=_NO_VERTS).keypoints
         parts = []
         if k3 is not None:
             a, b = kp, k3
@@ -196,7 +198,7 @@ def fit_keypoints(
     def irls_weights(x: torch.Tensor, anneal: float) -> torch.Tensor:
         """Geman-McClure IRLS weights rho'(r^2 / s^2) = 1 / (1 + r^2 / s^2)^2, times confidence."""
         with torch.no_grad():
-            kp = model(unpack(x)).keypoints
+            kp = model(unpack(x), vertex_ids=_NO_VERTS).keypoints
             out = torch.ones(B, NUM_KEYPOINTS, 2, dtype=dt)
             if k3 is not None:
                 a, b = kp, k3

@@ -302,12 +302,12 @@ class MANOHand(HandModel):
         feat = (rotmats[:, 1:] - eye).reshape(B, 135)
         return (feat @ self.posedirs.to(rotmats.dtype)).reshape(B, NUM_VERTICES, 3)
 
-    def forward(self, params: HandParams):
+    def forward(self, params: HandParams, vertex_ids: torch.Tensor | None = None):
         """Pose the hand (see :meth:`HandModel.forward`); adds ``hands_mean`` unless flat."""
         if not self.flat_hand_mean and isinstance(params, HandParams):
             mean = self._side_pose(self.hands_mean.to(params.pose.dtype)[None], params.side)
             params = replace(params, pose=params.pose + mean)
-        return super().forward(params)
+        return super().forward(params, vertex_ids)
 
     # -- pose PCA -----------------------------------------------------------------------------
     @staticmethod

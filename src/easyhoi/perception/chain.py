@@ -1,0 +1,136 @@
+"""The perception chain: photo -> :class:`~easyhoi.hoi.HOIInput` (paper section 2.1).
+
+Steps (each a pluggable backend, chosen by name in :class:`~easyhoi.config.PerceptionConfig`):
+
+1. hand detection (keypoints) and keypoint fitting of the hand model;
+2. HOI segmentation: visible hand mask M_h, held-object mask M_o after contour-guided filtering.
+   With several hands, the first (most confident) hand that holds an object is used;
+3. hand removal by inpainting (hand mask dilated);
+4. amodal re-segmentation prompted by points in every part of M_o and a loose box -> M^_o
+   (forced to contain M_o);
+5. object mesh from the inpainted object crop, made watertight.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from easyhoi.config import EasyHOIConfig
+from easyhoi.errors import NoHandError, NoObjectError
+from easyhoi.hand import load_hand_model
+from easyhoi.hoi import HOIInput
+from easyhoi.perception.base import create
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class PerceptionReport:
+    """What the chain found and how long each step took (seconds)."""
+
+    hands_found: int = 0
+    side: str | None = None
+    has_object: bool = False
+    timings: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {
+            "hands_found": self.hands_found,
+            "side": self.side,
+            "has_object": self.has_object,
+            "timings": dict(self.timings),
+            "notes": list(self.notes),
+        }
+
+
+def perceive(
+    image: np.ndarray,
+    config: EasyHOIConfig | None = None,
+    progress: Callable[[str], None] | None = None,
+    seed: int = 0,
+) -> tuple[HOIInput, PerceptionReport]:
+    """Run the perception chain on an (H, W, 3) uint8 RGB photo.
+
+    Raises:
+        NoHandError: no hand in the photo.
+        NoObjectError: hands were found but none holds an object.
+    """
+    from easyhoi.geometry.watertight import make_watertight
+    from easyhoi.perception.amodal import amodal_prompts
+    from easyhoi.perception.hand_fit import fit_detection
+
+    cfg = config or EasyHOIConfig()
+    pc = cfg.perception
+    report = PerceptionReport()
+    say = progress or (lambda _msg: None)
+    H, W = image.shape[:2]
+
+    def timed(name, fn, *a, **kw):
+        say(name)
+        t0 = time.perf_counter()
+        out = fn(*a, **kw)
+        report.timings[name] = round(time.perf_counter() - t0, 4)
+        return out
+
+    hands = timed("hand detection", create("hand", pc.hand).detect, image)
+    report.hands_found = len(hands)
+    if not hands:
+        raise NoHandError("no hand found in the photo")
+    segmenter = create("segmenter", pc.segmenter)
+    chosen = seg = None
+    for i, hand in enumerate(hands):
+        s = timed(f"segmentation (hand {i})", segmenter.segment, image, hand)
+        if s.has_object:
+            chosen, seg = hand, s
+            break
+        report.notes.append(f"hand {i} ({hand.side}) holds no object")
+    if chosen is None:
+        raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
+    report.side, report.has_object = chosen.side, True
+
+    model = load_hand_model(cfg.hand_model, cfg.mano_dir)
+    chosen = timed("hand fit", fit_detection, chosen, model, W, H)
+
+    inpainted = timed("inpainting", create("inpainter", pc.inpainter).inpaint, image, seg.hand_mask)
+    points, box = amodal_prompts(seg.object_mask, seed=seed)
+    amodal = timed(
+        "amodal segmentation",
+        create("amodal", pc.amodal).segment,
+        inpainted,
+        points,
+        box,
+        seg.object_mask,
+    )
+    amodal = np.asarray(amodal, bool) | seg.object_mask
+    mesh = timed("object mesh", create("object", pc.object).reconstruct, inpainted, amodal)
+    if not mesh.is_watertight:
+        mesh, wt = timed("watertight", make_watertight, mesh)
+        report.notes.append(f"object mesh repaired ({wt.method})")
+    inp = HOIInput(
+        image=image,
+        hand_mask=seg.hand_mask,
+        object_mask=seg.object_mask,
+        amodal_mask=amodal,
+        object_mesh=mesh,
+        hand_params=chosen.params,
+        hand_camera=chosen.camera,
+        hand_model=cfg.hand_model,
+        inpainted_image=inpainted,
+        meta={
+            "keypoints2d": np.asarray(chosen.keypoints2d).tolist(),
+            "hand_side": chosen.side,
+            "detection": {k: v for k, v in chosen.meta.items() if _jsonable(v)},
+            "perception": report.to_dict(),
+        },
+    )
+    return inp, report
+
+
+def _jsonable(v) -> bool:
+    return isinstance(v, str | int | float | bool | type(None))

@@ -1,0 +1,70 @@
+"""Turn a detected hand (2D keypoints + root-relative metric 3D keypoints) into hand parameters.
+
+Camera convention for photos without calibration: a pinhole camera with the principal point at
+the image centre and a horizontal-or-vertical field of view of ``fov_deg`` (default 50 degrees)
+on the image's longer side, ``f = max(W, H) / (2 tan(fov / 2))`` — a typical phone main camera.
+HaMeR's convention (``f = 5000 / 256 * max(W, H)``, nearly orthographic) is available as
+``focal="hamer"`` for compatibility with imported HaMeR results.
+
+The fit (:func:`easyhoi.hand.fit.fit_keypoints`) uses the 3D keypoints up to a translation for
+articulation and size and the 2D keypoints for placement (depth from apparent size).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import torch
+
+from easyhoi.errors import InvalidInputError
+from easyhoi.hand.base import HandModel
+from easyhoi.hand.fit import FitConfig, fit_keypoints
+from easyhoi.perception.base import HandDetection
+from easyhoi.structures import Camera
+
+DEFAULT_FOV_DEG = 50.0
+
+
+def photo_camera(width: int, height: int, focal: str | float = "fov", fov_deg: float = 50.0):
+    """The uncalibrated photo camera (see the module docstring)."""
+    if focal == "hamer":
+        return Camera.hamer_convention(width, height)
+    if focal == "fov":
+        f = max(width, height) / (2 * math.tan(math.radians(fov_deg) / 2))
+        return Camera.from_focal(f, width, height)
+    if isinstance(focal, int | float) and focal > 0:
+        return Camera.from_focal(float(focal), width, height)
+    raise InvalidInputError(f"focal must be 'fov', 'hamer' or a positive number, got {focal!r}")
+
+
+def fit_detection(
+    detection: HandDetection,
+    model: HandModel,
+    width: int,
+    height: int,
+    focal: str | float = "fov",
+    config: FitConfig | None = None,
+) -> HandDetection:
+    """Return ``detection`` with fitted ``params`` and ``camera`` filled in.
+
+    Args:
+        detection: a hand with 21 OpenPose-order 2D keypoints (and ideally metric 3D ones).
+        model: the hand model to fit.
+        width, height: image size in pixels.
+        focal: camera convention (see :func:`photo_camera`).
+    """
+    cam = photo_camera(width, height, focal)
+    k2 = torch.as_tensor(detection.keypoints2d, dtype=torch.float64)[None]
+    k3 = None
+    if detection.keypoints3d is not None:
+        k3 = torch.as_tensor(detection.keypoints3d, dtype=torch.float64)[None]
+    fit = fit_keypoints(
+        model, k3, keypoints2d=k2, camera=cam, side=detection.side, relative_3d=True,
+        config=config or FitConfig(),
+    )  # fmt: skip
+    meta = dict(detection.meta)
+    meta["fit_error_2d_px"] = float(fit.error_2d.mean())
+    if fit.error_3d is not None:
+        meta["fit_error_3d_mm"] = float(fit.error_3d.mean() * 1000)
+    return replace(detection, params=fit.params.to(dtype=torch.float32), camera=cam, meta=meta)
