@@ -49,13 +49,33 @@ class PerceptionReport:
         }
 
 
+@dataclass(frozen=True)
+class Provided:
+    """Results of other tools that replace perception steps (all optional).
+
+    Attributes:
+        hand: (HandParams, Camera) of an imported hand (e.g. HaMeR), replacing detection + fit.
+        hand_mask, object_mask, amodal_mask: (H, W) bool masks (e.g. LISA / SAM PNGs).
+        object_mesh: a ``trimesh.Trimesh`` (e.g. InstantMesh / Tripo3D output).
+    """
+
+    hand: tuple | None = None
+    hand_mask: np.ndarray | None = None
+    object_mask: np.ndarray | None = None
+    amodal_mask: np.ndarray | None = None
+    object_mesh: object | None = None
+
+
 def perceive(
     image: np.ndarray,
     config: EasyHOIConfig | None = None,
     progress: Callable[[str], None] | None = None,
     seed: int = 0,
+    provided: Provided | None = None,
 ) -> tuple[HOIInput, PerceptionReport]:
     """Run the perception chain on an (H, W, 3) uint8 RGB photo.
+
+    Steps whose results are in ``provided`` are skipped (their inputs are not needed).
 
     Raises:
         NoHandError: no hand in the photo.
