@@ -127,6 +127,11 @@ def test_peel_pixels_arbitrary_points():
         for i, h in enumerate(ref)
     )
     assert agree >= 297
+    # queries spread over a huge area take the unbinned path: same hits
+    far = torch.cat([uv, torch.tensor([[-5e4, -5e4]], dtype=F64)])
+    spread = peel_pixels(v, f, cam, far, num_layers=6)
+    assert torch.equal(spread.face_ids[:300], fr.face_ids)
+    assert not spread.mask[300].any()
     centres = cam.pixel_centers().reshape(-1, 2)[::7]
     full = peel(v, f, cam).face_ids.reshape(-1, 4)[::7]
     assert torch.equal(peel_pixels(v, f, cam, centres).face_ids, full)

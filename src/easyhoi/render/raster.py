@@ -149,6 +149,42 @@ def _fragments(v, f, camera: Camera, near: float, num_layers: int, candidates, n
     return ids, depth, bary, points
 
 
+def _query_pairs(tri_uv: torch.Tensor, uv: torch.Tensor):
+    """Candidate (face, query) pairs: queries binned into unit cells, faces' boxes over cells.
+
+    Falls back to a chunked box test of every (query, face) when the queries are spread over
+    far more cells than there are queries.
+    """
+    N = uv.shape[0]
+    origin = torch.floor(uv.amin(dim=0))
+    cell_xy = torch.floor(uv - origin).long()  # (N, 2)
+    gw, gh = (int(x) + 1 for x in cell_xy.amax(dim=0))
+    if gw * gh <= max(1 << 20, 64 * N):
+        cell = cell_xy[:, 1] * gw + cell_xy[:, 0]
+        order = torch.argsort(cell, stable=True)
+        counts = torch.bincount(cell, minlength=gw * gh)
+        first = torch.cumsum(counts, 0) - counts
+        # boxes grown by half a pixel: covers every cell [j, j+1) the face's box touches
+        face, c = bbox_pairs(tri_uv - origin, gh, gw, 0.5)
+        n = counts[c]
+        face = torch.repeat_interleave(face, n)
+        c = torch.repeat_interleave(c, n)
+        k = torch.arange(face.shape[0], device=face.device)
+        k = k - torch.repeat_interleave(torch.cumsum(n, 0) - n, n)
+        query = order[first[c] + k]
+    else:
+        lo, hi = tri_uv.amin(dim=1), tri_uv.amax(dim=1)
+        step = max(1, _QUERY_CHUNK // max(tri_uv.shape[0], 1))
+        faces_, queries = [], []
+        for s in range(0, N, step):
+            q = uv[s : s + step, None, :]
+            qi, fi = ((q >= lo) & (q <= hi)).all(dim=-1).nonzero(as_tuple=True)
+            faces_.append(fi)
+            queries.append(qi + s)
+        face, query = torch.cat(faces_), torch.cat(queries)
+    return face, query, uv[query]
+
+
 def _prepare(verts, faces, camera, near, num_layers):
     camera = as_camera(camera)
     near = check_positive(near, "near")
@@ -222,19 +258,7 @@ def peel_pixels(
     N = uv.shape[0]
 
     def candidates(tri_uv):
-        t = tri_uv.detach()
-        lo, hi = t.amin(dim=1), t.amax(dim=1)  # (F', 2)
-        step = max(1, _QUERY_CHUNK // max(t.shape[0], 1))
-        faces_, queries = [], []
-        for s in range(0, N, step):
-            q = uv[s : s + step, None, :]
-            m = ((q >= lo) & (q <= hi)).all(dim=-1)  # (n, F')
-            qi, fi = m.nonzero(as_tuple=True)
-            faces_.append(fi)
-            queries.append(qi + s)
-        face = torch.cat(faces_) if faces_ else torch.zeros(0, dtype=torch.long)
-        query = torch.cat(queries) if queries else torch.zeros(0, dtype=torch.long)
-        return face, query, uv[query]
+        return _query_pairs(tri_uv.detach(), uv)
 
     ids, depth, bary, points = _fragments(v, f, camera, near, num_layers, candidates, N)
     K = num_layers

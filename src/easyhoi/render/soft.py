@@ -32,9 +32,7 @@ from easyhoi.render._common import (
     as_camera,
     as_faces,
     as_verts,
-    bbox_pairs,
     check_positive,
-    pixel_uv,
     project_faces,
 )
 from easyhoi.structures import Camera
@@ -92,65 +90,117 @@ def _pair_kernel(X: torch.Tensor, Y: torch.Tensor, px: torch.Tensor, py: torch.T
     return val, coef, RX.gather(0, kk)[0], RY.gather(0, kk)[0], T.gather(0, kk)[0], k
 
 
+def _face_table(tri_uv: torch.Tensor, height: int, width: int, margin: float, base: torch.Tensor):
+    """Per-face pixel ranges of the grown bounding boxes (no gradients).
+
+    Returns:
+        face: (P,) long, the face of every pair (faces repeated by their pixel counts).
+        table: (5, N) long rows ``col0, row0, nx, first pair index, pixel offset``.
+    """
+    t = tri_uv.detach()
+    lim = torch.tensor([width, height], dtype=t.dtype, device=t.device)
+    j0 = torch.ceil(t.amin(dim=1) - margin - 0.5).clamp(min=0).minimum(lim).long()
+    j1 = torch.floor(t.amax(dim=1) + margin - 0.5).clamp(max=lim - 1).maximum(-torch.ones_like(lim))
+    ext = (j1.long() - j0 + 1).clamp(min=0)
+    counts = ext[:, 0] * ext[:, 1]
+    total = int(counts.sum()) if counts.numel() else 0
+    face = torch.repeat_interleave(
+        torch.arange(t.shape[0], device=t.device), counts, output_size=total
+    )
+    first = torch.cumsum(counts, 0) - counts
+    table = torch.stack([j0[:, 0], j0[:, 1], ext[:, 0].clamp(min=1), first, base])
+    return face, table
+
+
+def _fused_forward(tri6, table, face, width: int, inv_sigma: float, num_pix: int):
+    """Pair decoding, coverage terms and per-pixel scatter in one function (compilable).
+
+    Args:
+        tri6: (6, N) corner coordinates ``ax ay bx by cx cy`` per face.
+        table, face: from :func:`_face_table`.
+    Returns:
+        out: (num_pix,) ``sum log(1 - D)``; pix (P,) and the saved terms of :func:`_pair_kernel`.
+    """
+    tab = table[:, face]
+    k = torch.arange(face.shape[0], device=face.device) - tab[3]
+    r = torch.div(k, tab[2], rounding_mode="floor")
+    col = tab[0] + (k - r * tab[2])
+    row = tab[1] + r
+    pix = tab[4] + row * width + col
+    g = tri6[:, face]
+    px = col.to(tri6.dtype) + 0.5
+    py = row.to(tri6.dtype) + 0.5
+    val, coef, rx, ry, t, e = _pair_kernel(g[0::2], g[1::2], px, py, inv_sigma)
+    out = torch.zeros(num_pix, dtype=tri6.dtype, device=tri6.device).index_add_(0, pix, val)
+    return out, pix, coef, rx, ry, t, e
+
+
+def _fused_backward(grad_out, face, pix, coef, rx, ry, t, e, num_faces: int):
+    """Analytic gradient w.r.t. the (N, 3, 2) corners, flattened to (N * 6,) (compilable).
+
+    ``d val / d start = coef (1 - t) r`` and ``d val / d end = coef t r`` for the closest edge
+    ``e`` (envelope theorem: the closest point is optimal on the edge).
+    """
+    s = grad_out[pix] * coef
+    ws, we = s * (1.0 - t), s * t
+    i0 = (face * 3 + e) * 2
+    i1 = (face * 3 + torch.remainder(e + 1, 3)) * 2
+    grad = torch.zeros(num_faces * 6, dtype=s.dtype, device=s.device)
+    grad.index_add_(0, i0, ws * rx).index_add_(0, i0 + 1, ws * ry)
+    grad.index_add_(0, i1, we * rx).index_add_(0, i1 + 1, we * ry)
+    return grad
+
+
 _COMPILED: dict[str, object] = {}
 
 
 def set_compile(enabled: bool) -> None:
-    """Use ``torch.compile`` (inductor, ``dynamic=True``) for the per-pair kernel, or eager.
+    """Run the per-pair forward and backward through ``torch.compile`` (inductor), or eager.
 
-    Off by default: the first call pays a compilation (about 10-60 s, cached on disk by
-    inductor afterwards) that only a long optimization recovers; with it the kernel runs
-    several times faster (see docs/rendering.md). Pair counts vary every call, so the kernel
-    is compiled with dynamic shapes and never recompiles for a new count. If compilation fails
-    (no C++ compiler, ...) a warning is issued and the eager kernel is used.
+    Off by default: the first call in a process pays a compilation (10-60 s cold, a few
+    seconds once inductor's on-disk cache is warm) that only long optimizations recover;
+    after it one iteration is several times faster (see docs/rendering.md). Pair counts change
+    at every call, so the functions are compiled with ``dynamic=True`` and do not recompile
+    for new counts. If compilation fails (no C++ compiler, ...) a warning is issued and eager
+    code is used.
     """
     if enabled:
-        _COMPILED.setdefault("kernel", torch.compile(_pair_kernel, dynamic=True))
+        _COMPILED.setdefault("forward", torch.compile(_fused_forward, dynamic=True))
+        _COMPILED.setdefault("backward", torch.compile(_fused_backward, dynamic=True))
     else:
-        _COMPILED.pop("kernel", None)
+        _COMPILED.clear()
 
 
-def _run_kernel(*args):
-    fn = _COMPILED.get("kernel")
+def _call(name: str, eager, *args):
+    fn = _COMPILED.get(name)
     if fn is not None:
         try:
             return fn(*args)
         except Exception as exc:  # noqa: BLE001 - any backend failure falls back to eager
             import warnings
 
-            warnings.warn(
-                f"torch.compile of the soft kernel failed ({exc}); using eager", stacklevel=3
-            )
-            _COMPILED.pop("kernel", None)
-    return _pair_kernel(*args)
+            warnings.warn(f"torch.compile failed ({exc}); using eager kernels", stacklevel=3)
+            _COMPILED.clear()
+    return eager(*args)
 
 
 class _SoftLogSum(torch.autograd.Function):
     """Per-pixel ``sum_T log(1 - D_T)`` over culled pairs, with an analytic backward."""
 
     @staticmethod
-    def forward(ctx, tri_uv, face, pix, px, py, sigma: float, num_pix: int):
-        comps = tri_uv.reshape(-1, 6).t().contiguous()[:, face]  # (6, P): ax ay bx by cx cy
-        val, coef, rx, ry, t, k = _run_kernel(comps[0::2], comps[1::2], px, py, 1.0 / sigma)
-        out = torch.zeros(num_pix, dtype=tri_uv.dtype, device=tri_uv.device)
-        out.index_add_(0, pix, val)
-        ctx.save_for_backward(face, pix, coef, rx, ry, t, k.to(torch.uint8))
+    def forward(ctx, tri_uv, face, table, width: int, sigma: float, num_pix: int):
+        tri6 = tri_uv.detach().reshape(-1, 6).t().contiguous()
+        out, *saved = _call("forward", _fused_forward, tri6, table, face, width, 1.0 / sigma,
+                            num_pix)  # fmt: skip
+        ctx.save_for_backward(face, *saved)
         ctx.num_faces = tri_uv.shape[0]
         return out
 
     @staticmethod
     def backward(ctx, grad_out):
-        face, pix, coef, rx, ry, t, k = ctx.saved_tensors
-        # d val / d start = coef (1 - t) r, d val / d end = coef t r  (envelope theorem)
-        s = grad_out[pix] * coef
-        n3 = ctx.num_faces * 3
-        start = face * 3 + k
-        end = face * 3 + torch.remainder(k + 1, 3)
-        grad = torch.zeros(n3, 2, dtype=s.dtype, device=s.device)
-        for idx, w in ((start, s * (1.0 - t)), (end, s * t)):
-            grad[:, 0] += torch.bincount(idx, weights=w * rx, minlength=n3).to(s.dtype)
-            grad[:, 1] += torch.bincount(idx, weights=w * ry, minlength=n3).to(s.dtype)
-        return grad.view(-1, 3, 2), None, None, None, None, None, None
+        saved = ctx.saved_tensors
+        grad = _call("backward", _fused_backward, grad_out.contiguous(), *saved, ctx.num_faces)
+        return grad.view(-1, 3, 2), None, None, None, None, None
 
 
 def soft_silhouette(
@@ -214,11 +264,9 @@ def soft_log_visibility(
         logs = torch.zeros(B, H, W, dtype=dtype, device=camera.K.device)
     else:
         tri_uv, _, keep = project_faces(v, f, camera, near)
-        face, pix = bbox_pairs(tri_uv, H, W, cull_margin(sigma, cull_eps))
-        pix = pix + torch.div(keep[face], F, rounding_mode="floor") * (H * W)
-        p = pixel_uv(pix, W, H, dtype)
-        logs = _SoftLogSum.apply(tri_uv, face, pix, p[:, 0], p[:, 1], sigma, B * H * W)
-        logs = logs.view(B, H, W)
+        base = torch.div(keep, F, rounding_mode="floor") * (H * W)  # batch offsets
+        face, table = _face_table(tri_uv, H, W, cull_margin(sigma, cull_eps), base)
+        logs = _SoftLogSum.apply(tri_uv, face, table, W, sigma, B * H * W).view(B, H, W)
     sil = -torch.expm1(logs)
     if not batched:
         return sil[0], logs[0]
