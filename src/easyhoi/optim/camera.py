@@ -1,0 +1,280 @@
+"""Stage 1, camera setup: fit the object camera so the object's silhouette matches M^_o.
+
+Parameterisation (8 DoF, as the reference implementation): around an initial camera
+``(f0, R0, t0)`` the stage optimizes
+
+- ``log_f`` (2,): ``fx = f0 exp(log_f[0])``, ``fy = f0 exp(log_f[1])`` (principal point fixed at
+  the image centre); a step of lr = 1e-2 changes the focal by 1 %;
+- ``r`` (3,): axis-angle residual, ``R = Rot(r) R0``, applied about the OBJECT's centre ``c`` so
+  a rotation step does not swing the object across the image;
+- ``delta`` (3,): translation residual in units of the object's extent,
+  ``t = t0 + R0 c - R c + extent * delta`` (a step of lr moves the object by 1 % of its size,
+  the step size of the reference's raw translation for a unit-size object at distance 4.5).
+
+Loss: ``iou_weight * soft_iou(S, M^_o)``, plus ``sinkhorn_weight * sinkhorn(S, M^_o)`` on a coarse
+grid while the masks barely overlap (IoU loss above :data:`SINKHORN_GATE`, where the IoU alone
+has vanishing gradients). Adam; coarse-to-fine phases (``resolution_schedule``) share
+``max_iters``. A phase ends at ``stop_loss`` (IoU term), at ``patience`` or at its share of
+iterations; its best state (lowest IoU loss) seeds the next phase and the last phase's best is
+returned.
+
+Initialisation (``init_from_masks``): the mesh's canonical frame is assumed to roughly face the
+camera (x right, y down, z away, as the silhouette reconstructor outputs). For each candidate
+rotation in :data:`CANDIDATE_YAWS` (yaw about the canonical y axis) the distance and the lateral
+offset are solved so that the projected bounding box of the object matches the bounding box of
+M^_o (same centre, same area) at the focal of ``init_fov_deg``; the candidate with the lowest
+soft IoU loss at the first phase's resolution wins (ties keep the earlier candidate, so the
+canonical view is preferred). Without it the camera looks at the object's centre from
+``init_distance`` along +z (the reference implementation's InstantMesh setup).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import torch
+
+from easyhoi.config import CameraStageConfig, OptimConfig
+from easyhoi.geometry.transforms import axis_angle_to_matrix
+from easyhoi.hoi import StageResult
+from easyhoi.optim.losses import sinkhorn_mask_loss, soft_iou_loss
+from easyhoi.optim.scene import Scene, StageLoop, hard_iou, phase_sizes
+from easyhoi.render.soft import soft_silhouette
+from easyhoi.structures import Camera
+
+__all__ = ["CANDIDATE_YAWS", "SINKHORN_GATE", "fit_box", "fit_camera", "initial_camera"]
+
+#: The Sinkhorn term is added while the soft IoU loss is above this value (masks barely
+#: overlap); below it the IoU gradient suffices and the (costly) term is skipped.
+SINKHORN_GATE = 0.5
+
+#: Candidate yaw angles (degrees, about the canonical y axis) tried by ``init_from_masks``.
+CANDIDATE_YAWS = (0.0, 90.0, 180.0, 270.0)
+
+#: Fixed-point iterations of :func:`fit_box`.
+BOX_FIT_ITERS = 8
+
+
+def _mask_box(mask: np.ndarray) -> np.ndarray:
+    """(4,) pixel box ``u0, v0, u1, v1`` (edges, not centres) of a non-empty bool mask."""
+    rows = np.nonzero(mask.any(axis=1))[0]
+    cols = np.nonzero(mask.any(axis=0))[0]
+    return np.array([cols[0], rows[0], cols[-1] + 1, rows[-1] + 1], dtype=np.float64)
+
+
+def fit_box(
+    verts: np.ndarray,
+    R: np.ndarray,
+    focal: float,
+    principal: tuple[float, float],
+    box: np.ndarray,
+    center: np.ndarray,
+) -> np.ndarray:
+    """Translation placing the object so its projected box matches ``box``.
+
+    Parameters
+    ----------
+    verts : (V, 3) object vertices (object units).
+    R : (3, 3) camera rotation.
+    focal : float, pixels (fx = fy).
+    principal : (cx, cy) pixels.
+    box : (4,) target box ``u0, v0, u1, v1`` in pixels.
+    center : (3,) object centre.
+
+    Returns
+    -------
+    (3,) ``t`` with ``x_cam = R x + t``: same box centre and area after a few fixed-point
+    iterations (depth from the area ratio, lateral shift from the centre offset).
+    """
+    X = (verts - center) @ R.T
+    bw, bh = max(box[2] - box[0], 1.0), max(box[3] - box[1], 1.0)
+    ext = np.ptp(X[:, :2], axis=0).clip(1e-12)
+    z = focal * math.sqrt(ext[0] * ext[1] / (bw * bh)) - X[:, 2].min()
+    T = np.array([0.0, 0.0, max(z, 1e-6)])
+    target_c = 0.5 * (box[:2] + box[2:])
+    for _ in range(BOX_FIT_ITERS):
+        P = X + T
+        zc = P[:, 2].clip(1e-9)
+        uv = focal * P[:, :2] / zc[:, None] + np.asarray(principal)
+        pw, ph = np.ptp(uv, axis=0).clip(1e-9)
+        T[2] = (T[2] + X[:, 2].mean()) * math.sqrt(pw * ph / (bw * bh)) - X[:, 2].mean()
+        P = X + T
+        uv = focal * P[:, :2] / P[:, 2:3].clip(1e-9) + np.asarray(principal)
+        pc = 0.5 * (uv.min(axis=0) + uv.max(axis=0))
+        T[:2] += (target_c - pc) * (T[2] + X[:, 2].mean()) / focal
+    return T - R @ center
+
+
+def _yaw(deg: float) -> np.ndarray:
+    a = math.radians(deg)
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def initial_camera(
+    scene: Scene, cfg: CameraStageConfig, amodal_mask: np.ndarray, render_size: int
+) -> tuple[Camera, dict]:
+    """The stage's starting camera (full image size) and a JSON-ready note of how it was chosen.
+
+    See the module docstring; ``render_size`` and the first phase fraction set the resolution
+    at which candidates are compared.
+    """
+    H, W = scene.image_size
+    focal = 0.5 * H / math.tan(math.radians(cfg.init_fov_deg) / 2.0)
+    principal = (W / 2.0, H / 2.0)
+    verts = scene.object_verts.detach().double().numpy()
+    c = scene.center.detach().double().numpy()
+    dtype = scene.dtype
+    if not cfg.init_from_masks:
+        t = np.array([0.0, 0.0, cfg.init_distance]) - c
+        cam = Camera.from_focal(focal, W, H, R=np.eye(3), t=t, dtype=dtype)
+        return cam, {"init": "default", "distance": cfg.init_distance}
+    box = _mask_box(np.asarray(amodal_mask, dtype=bool))
+    h, w = scene.render_size(cfg.resolution_schedule[0], render_size)
+    target = scene.masks_at(h, w)["amodal"]
+    best, notes = None, []
+    for yaw in CANDIDATE_YAWS:
+        R = _yaw(yaw)
+        t = fit_box(verts, R, focal, principal, box, c)
+        cam = Camera.from_focal(focal, W, H, R=R, t=t, dtype=dtype)
+        with torch.no_grad():
+            sil = soft_silhouette(scene.object_verts, scene.object_faces, cam.resized(w, h))
+            loss = float(soft_iou_loss(sil, target))
+        notes.append({"yaw_deg": yaw, "iou_loss": loss})
+        if best is None or loss < best[0]:
+            best = (loss, cam, yaw)
+    return best[1], {"init": "mask_box", "yaw_deg": best[2], "candidates": notes}
+
+
+class _CameraParams:
+    """Residual parameters around an initial camera (see the module docstring)."""
+
+    def __init__(self, cam0: Camera, center: torch.Tensor, extent: float, optimise_focal: bool):
+        dt = cam0.K.dtype
+        self.cam0 = cam0.detach()
+        self.center = center.to(dt)
+        self.extent = float(extent)
+        self.log_f = torch.zeros(2, dtype=dt, requires_grad=optimise_focal)
+        self.r = torch.zeros(3, dtype=dt, requires_grad=True)
+        self.delta = torch.zeros(3, dtype=dt, requires_grad=True)
+
+    def tensors(self) -> list[torch.Tensor]:
+        return [p for p in (self.log_f, self.r, self.delta) if p.requires_grad]
+
+    def camera(self) -> Camera:
+        c0 = self.cam0
+        f0 = c0.K.diagonal()[:2]
+        df = f0 * torch.expm1(self.log_f)
+        K = c0.K + torch.diag(torch.cat([df, torch.zeros(1, dtype=df.dtype)]))
+        R = axis_angle_to_matrix(self.r) @ c0.R
+        t = c0.t + c0.R @ self.center - R @ self.center + self.extent * self.delta
+        return Camera(K, R, t, c0.width, c0.height)
+
+    def state(self) -> tuple[torch.Tensor, ...]:
+        return tuple(p.detach().clone() for p in (self.log_f, self.r, self.delta))
+
+    def load(self, state) -> None:
+        with torch.no_grad():
+            for p, s in zip((self.log_f, self.r, self.delta), state, strict=True):
+                p.copy_(s)
+
+
+def fit_camera(
+    scene: Scene,
+    cam0: Camera,
+    cfg: CameraStageConfig,
+    optim_cfg: OptimConfig,
+    progress=None,
+) -> tuple[Camera, StageResult]:
+    """Run stage 1 from ``cam0``.
+
+    Parameters
+    ----------
+    scene : Scene
+    cam0 : Camera
+        Initial object camera at the full image size (:func:`initial_camera`).
+    cfg : CameraStageConfig
+    optim_cfg : OptimConfig
+        For ``render_size`` and ``history_every``.
+    progress : callable or None
+        ``progress("camera", iteration, max_iters, terms)``.
+
+    Returns
+    -------
+    camera : Camera
+        Fitted camera (full image size, detached).
+    result : StageResult
+        History (``iou``, ``sinkhorn``, ``total`` per recorded iteration), iterations, stop
+        reason, and ``extra`` with the final hard IoU at the last resolution.
+    """
+    start = time.perf_counter()
+    params = _CameraParams(cam0, scene.center, scene.extent, cfg.optimise_focal)
+    loop = StageLoop("camera", cfg.max_iters, optim_cfg.history_every, progress)
+    opt = torch.optim.Adam(params.tensors(), lr=cfg.lr)
+    it, stop_reason = 0, "max_iters"
+    sizes = phase_sizes(cfg.max_iters, len(cfg.resolution_schedule))
+    final_iou = None
+    for phase, (frac, n_iters) in enumerate(zip(cfg.resolution_schedule, sizes, strict=True)):
+        last_phase = phase == len(sizes) - 1
+        h, w = scene.render_size(frac, optim_cfg.render_size)
+        target = scene.masks_at(h, w)["amodal"]
+        loop.reset_best()
+        best_total, since_best = math.inf, 0
+        phase_reason = "max_iters"
+        for _ in range(n_iters):
+            cam = params.camera().resized(w, h)
+            sil = soft_silhouette(scene.object_verts, scene.object_faces, cam)
+            iou = soft_iou_loss(sil, target)
+            total = cfg.iou_weight * iou
+            terms = {"iou": float(iou)}
+            if cfg.use_sinkhorn and cfg.sinkhorn_weight > 0 and float(iou) > SINKHORN_GATE:
+                sk = sinkhorn_mask_loss(
+                    sil, target, cfg.sinkhorn_grid, cfg.sinkhorn_blur, cfg.sinkhorn_scaling
+                )
+                total = total + cfg.sinkhorn_weight * sk
+                terms["sinkhorn"] = float(sk)
+            terms["total"] = float(total)
+            loop.record(it, terms)
+            loop.offer(float(iou), params.state(), it)
+            if float(iou) < cfg.stop_loss:
+                phase_reason = "stop_loss"
+                break
+            if float(total) < best_total - cfg.min_delta:
+                best_total, since_best = float(total), 0
+            else:
+                since_best += 1
+            if cfg.patience and since_best >= cfg.patience:
+                phase_reason = "patience"
+                break
+            opt.zero_grad(set_to_none=True)
+            total.backward()
+            opt.step()
+            it += 1
+        if loop.best_state is not None:
+            params.load(loop.best_state)
+        if last_phase:
+            stop_reason = phase_reason
+            with torch.no_grad():
+                cam = params.camera().resized(w, h)
+                sil = soft_silhouette(scene.object_verts, scene.object_faces, cam)
+                final_iou = hard_iou(sil, target)
+    with torch.no_grad():
+        camera = params.camera().detach()
+    extra = {
+        "final_mask_iou": final_iou,
+        "best_iou_loss": loop.best_score if math.isfinite(loop.best_score) else None,
+        "fx": float(camera.fx),
+        "fy": float(camera.fy),
+    }
+    result = StageResult(
+        name="camera",
+        camera=camera,
+        losses=loop.history,
+        seconds=time.perf_counter() - start,
+        iterations=it,
+        stop_reason=stop_reason,
+        extra=extra,
+    )
+    return camera, result
