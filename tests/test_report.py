@@ -1,0 +1,128 @@
+"""The HTML report and the all-or-nothing result folder."""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import re
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+import easyhoi.viz.report as report_mod
+import easyhoi.viz.views as views_mod
+from easyhoi.errors import InvalidInputError
+from easyhoi.io.result_folder import RESULT_FILES, write_result_folder
+from easyhoi.viz.report import fmt, report_html
+from tests.hoi_scene import METRIC_SCALE, H, W, make_input, make_result
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_result(), make_input()
+
+
+@pytest.fixture(scope="module")
+def folder(scene, tmp_path_factory):
+    """One complete folder, written over a stale folder of the same name."""
+    result, inp = scene
+    out = tmp_path_factory.mktemp("out")
+    stale = out / "photo_01"
+    stale.mkdir()
+    (stale / "old.txt").write_text("stale")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(views_mod, "VIEW_SIZE", 64)
+        paths = write_result_folder(result, inp, out, "photo_01.jpg")
+    return out, paths
+
+
+def test_folder_contents(folder, scene):
+    out, paths = folder
+    result, _ = scene
+    assert [p.name for p in paths] == list(RESULT_FILES)
+    assert all(p.is_file() and p.stat().st_size > 0 for p in paths)
+    d = out / "photo_01"
+    assert sorted(x.name for x in d.iterdir()) == sorted(RESULT_FILES)  # stale file gone
+    assert sorted(x.name for x in out.iterdir()) == ["photo_01"]  # no temp leftovers
+    hand = trimesh.load(d / "hand.ply", process=False)
+    np.testing.assert_allclose(hand.vertices, result.hand_vertices * METRIC_SCALE, atol=1e-12)
+    doc = json.loads((d / "result.json").read_text())
+    assert doc["units"] == "metres" and len(doc["hand"]["pose"]) == 45
+    overlay = Image.open(d / "overlay.png")
+    assert overlay.size == (W, H)
+    assert len(trimesh.load(d / "scene.glb").geometry) == 2
+
+
+def test_report_is_self_contained(folder, scene):
+    result, inp = scene
+    page = (folder[0] / "photo_01" / "report.html").read_text(encoding="utf-8")
+    assert not re.search(r"(src|href)\s*=\s*[\"']?\s*(https?:|//)", page, re.I)
+    assert "http" not in page.lower()
+    assert "<script" not in page.lower() and "<link" not in page.lower()
+    srcs = re.findall(r"<img[^>]*\ssrc=\"([^\"]+)\"", page)
+    assert len(srcs) == len(re.findall(r"<img", page)) == 6
+    for s in srcs:
+        assert s.startswith("data:image/png;base64,")
+        im = Image.open(io.BytesIO(base64.b64decode(s.split(",", 1)[1])))
+        assert im.format == "PNG"
+    # the embedded overlay is the file next to it
+    overlay = (folder[0] / "photo_01" / "overlay.png").read_bytes()
+    assert base64.b64encode(overlay).decode() in page
+    for key, value in result.plausibility.items():
+        assert f'<td>{key}</td><td class="num">{fmt(value)}</td>' in page
+    for value in result.timings.values():
+        assert f">{fmt(value)}<" in page
+    assert "photo_01.jpg" in page
+    assert 'mask IoU: object amodal</td><td class="num">1<' in page
+
+
+def test_fmt():
+    assert fmt(0.123456) == "0.1235"
+    assert fmt(3) == "3"
+    assert fmt(float("nan")) == "n/a"
+    assert fmt(None) == "n/a"
+
+
+def test_report_html_escapes_and_rejects(scene):
+    result, inp = scene
+    pics = {k: b"\x89PNG fake" for k in report_mod.PICTURES}
+    page = report_html(result, inp, images=pics, title="<b>x</b>")
+    assert "&lt;b&gt;x&lt;/b&gt;" in page and "<b>x</b>" not in page
+    with pytest.raises(InvalidInputError):
+        report_html(result, "not an input", images=pics)
+
+
+def _boom(*args, **kwargs):
+    raise RuntimeError("injected failure")
+
+
+def test_failure_leaves_no_partial_folder(scene, tmp_path, monkeypatch):
+    result, inp = scene
+    monkeypatch.setattr(report_mod, "render_pictures", _boom)
+    with pytest.raises(RuntimeError, match="injected"):
+        write_result_folder(result, inp, tmp_path, "a.png")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failure_keeps_existing_folder(scene, tmp_path, monkeypatch):
+    result, inp = scene
+    old = tmp_path / "a"
+    old.mkdir()
+    (old / "result.json").write_text('{"old": true}')
+    monkeypatch.setattr(views_mod, "VIEW_SIZE", 32)
+    monkeypatch.setattr(report_mod, "write_report", _boom)  # the very last file
+    with pytest.raises(RuntimeError, match="injected"):
+        write_result_folder(result, inp, tmp_path, "a.png")
+    assert [p.name for p in tmp_path.iterdir()] == ["a"]
+    assert [p.name for p in old.iterdir()] == ["result.json"]
+    assert (old / "result.json").read_text() == '{"old": true}'
+
+
+@pytest.mark.parametrize("name", ["", "../x.png", "a/b.png", ".hidden"])
+def test_bad_image_names(scene, tmp_path, name):
+    result, inp = scene
+    with pytest.raises(InvalidInputError):
+        write_result_folder(result, inp, tmp_path, name)
