@@ -1,0 +1,295 @@
+"""The ``easyhoi`` command line.
+
+Exit codes: 0 success; 1 other easyhoi error; 2 invalid input (bad file, wrong size, bad
+option); 3 missing optional dependency; 4 backend failure; 5 no hand found; 6 no held object;
+7 optimization failure; 8 some photos of a batch failed; 70 internal error (a bug: please
+report it with ``--verbose`` output); 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from easyhoi import __version__
+from easyhoi.errors import EasyHOIError, InvalidInputError
+
+logger = logging.getLogger("easyhoi")
+
+EXIT_BATCH_PARTIAL = 8
+EXIT_INTERNAL = 70
+EXIT_INTERRUPTED = 130
+
+
+# ----------------------------------------------------------------------------------------------
+# commands
+# ----------------------------------------------------------------------------------------------
+
+
+def cmd_demo_hand(args) -> int:
+    """Pose the built-in hand, write meshes and pictures (works without any model file)."""
+    from easyhoi.hand import load_hand_model
+    from easyhoi.hand.regions import grasp_pose, plot_regions
+    from easyhoi.io.atomic import atomic_write_bytes
+    from easyhoi.structures import HandParams
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    model = load_hand_model(args.hand_model, args.mano_dir)
+    rest = model(HandParams.zeros(1)).to_trimesh()
+    params = HandParams.zeros(1)
+    params = HandParams(params.global_orient, params.transl, grasp_pose(model).float(), None)
+    posed = model(params).to_trimesh()
+    files = []
+    for name, mesh in (("hand_rest.ply", rest), ("hand_grasp.ply", posed)):
+        atomic_write_bytes(out / name, mesh.export(file_type="ply"))
+        files.append(out / name)
+    files.append(plot_regions(model, out / "hand_regions.png"))
+    _say(args, f"hand model '{model.name}': {model.num_vertices} vertices, "
+         f"{len(model.faces)} faces, watertight={rest.is_watertight}, "
+         f"volume={rest.volume * 1e6:.0f} cm^3")  # fmt: skip
+    for f in files:
+        _say(args, f"wrote {f}")
+    return 0
+
+
+def cmd_reconstruct(args) -> int:
+    """Reconstruct hand + object from one or more photos."""
+    from easyhoi.pipeline import reconstruct_photo
+
+    cfg = _config_from_args(args)
+    provided = _provided_from_args(args)
+    if len(args.images) > 1 and provided is not None:
+        raise InvalidInputError("--hand-mask/--object-mask/... imports need exactly one photo")
+    failures = 0
+    for image in args.images:
+        out = Path(args.out) if len(args.images) == 1 else Path(args.out) / Path(image).stem
+        try:
+            with _Progress(args, Path(image).name) as bar:
+                rec = reconstruct_photo(
+                    image, out, cfg, seed=args.seed, provided=provided,
+                    progress=bar.update, say=bar.step,
+                )  # fmt: skip
+        except EasyHOIError as exc:
+            if len(args.images) == 1:
+                raise
+            failures += 1
+            _err(f"{image}: {type(exc).__name__}: {exc}")
+            continue
+        _say(args, f"{image}: done in {rec.seconds:.1f} s -> {out}")
+        for f in rec.files:
+            logger.info("wrote %s", f)
+    return EXIT_BATCH_PARTIAL if failures else 0
+
+
+def cmd_doctor(args) -> int:
+    """Versions, available backends and what is missing."""
+    import importlib
+    import os
+    import platform
+
+    from easyhoi.perception.base import ROLES, available
+
+    lines = [f"easyhoi {__version__}, Python {platform.python_version()}"]
+    for mod in ("torch", "numpy", "scipy", "trimesh", "embreex", "point_cloud_utils",
+                "pymeshfix", "pybullet", "geomloss", "cv2", "skimage", "mediapipe",
+                "transformers", "diffusers", "gradio", "ray"):  # fmt: skip
+        try:
+            m = importlib.import_module(mod)
+            lines.append(f"  {mod:18s} {getattr(m, '__version__', 'ok')}")
+        except Exception as exc:  # noqa: BLE001 - report anything that fails to import
+            lines.append(f"  {mod:18s} not available ({type(exc).__name__})")
+    lines.append("backends:")
+    for role in ROLES:
+        lines.append(f"  {role:10s} {', '.join(available(role))}")
+    mano = os.environ.get("EASYHOI_MANO_DIR")
+    lines.append(
+        "MANO: " + (f"EASYHOI_MANO_DIR={mano}" if mano else
+                    "not configured (built-in open hand is used; pass --mano-dir to use MANO)")
+    )  # fmt: skip
+    for line in lines:
+        _say(args, line, force=True)
+    return 0
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers
+# ----------------------------------------------------------------------------------------------
+
+
+def _config_from_args(args):
+    from dataclasses import replace
+
+    from easyhoi.config import get_preset, parse_overrides, with_overrides
+
+    cfg = get_preset(args.preset)
+    cfg = replace(cfg, hand_model=args.hand_model, mano_dir=args.mano_dir)
+    perception = {
+        "hand": args.hand_backend, "segmenter": args.segmenter, "inpainter": args.inpainter,
+        "amodal": args.amodal, "object": args.object_backend,
+    }  # fmt: skip
+    perception = {k: v for k, v in perception.items() if v}
+    if perception:
+        cfg = replace(cfg, perception=replace(cfg.perception, **perception))
+    if args.set:
+        cfg = with_overrides(cfg, parse_overrides(args.set, cfg))
+    return cfg
+
+
+def _provided_from_args(args):
+    keys = ("hand_mask", "object_mask", "amodal_mask", "object_mesh", "hand_params")
+    if not any(getattr(args, k) for k in keys):
+        return None
+    from easyhoi.io.image import load_image, load_mask
+    from easyhoi.perception.chain import Provided
+
+    size = None
+    if args.images:
+        img = load_image(args.images[0])
+        size = img.rgb.shape[:2]
+    kw = {}
+    for k in ("hand_mask", "object_mask", "amodal_mask"):
+        if getattr(args, k):
+            kw[k] = load_mask(getattr(args, k), size=size)
+    if args.object_mesh:
+        from easyhoi.geometry.mesh import load_mesh
+
+        kw["object_mesh"] = load_mesh(args.object_mesh)
+    if args.hand_params:
+        from easyhoi.perception.importers import load_hamer_hand
+
+        W, H = (size[1], size[0]) if size else (None, None)
+        kw["hand"] = load_hamer_hand(args.hand_params, (W, H) if size else None)
+    return Provided(**kw)
+
+
+class _Progress:
+    """Per-stage progress bars on stderr (silent with --quiet or when not a terminal)."""
+
+    def __init__(self, args, label: str):
+        self.enabled = not args.quiet and sys.stderr.isatty()
+        self.label = label
+        self.bar = None
+        self.stage = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self.bar is not None:
+            self.bar.close()
+        return False
+
+    def step(self, name: str):
+        logger.info("%s: %s", self.label, name)
+        if self.enabled:
+            sys.stderr.write(f"{self.label}: {name}\n")
+
+    def update(self, stage: str, it: int, total: int, losses: dict):
+        if not self.enabled:
+            return
+        from tqdm import tqdm
+
+        if stage != self.stage:
+            if self.bar is not None:
+                self.bar.close()
+            self.bar = tqdm(total=total, desc=f"{self.label} {stage}", leave=False)
+            self.stage = stage
+        self.bar.n = min(it, total)
+        if losses:
+            self.bar.set_postfix({k: f"{v:.3g}" for k, v in list(losses.items())[:3]})
+        self.bar.refresh()
+
+
+def _say(args, msg: str, force: bool = False) -> None:
+    if force or not getattr(args, "quiet", False):
+        sys.stdout.write(msg + "\n")
+
+
+def _err(msg: str) -> None:
+    sys.stderr.write(msg + "\n")
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+    p.add_argument("-v", "--verbose", action="store_true", help="debug logs and tracebacks")
+
+
+def _add_model_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--hand-model", choices=("open", "mano"), default="open",
+                   help="hand model: built-in open hand (default) or your MANO file")  # fmt: skip
+    p.add_argument("--mano-dir", default=None,
+                   help="folder or path of MANO_RIGHT.pkl (or set EASYHOI_MANO_DIR)")  # fmt: skip
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="easyhoi",
+        description="Reconstruct a 3D hand holding an object from one photo, on a CPU.",
+        epilog=__doc__.split("\n\n", 1)[1] if __doc__ else None,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"easyhoi {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("reconstruct", help="photo(s) -> hand + object meshes, camera, report")
+    p.add_argument("images", nargs="+", metavar="IMAGE", help="photo file(s)")
+    p.add_argument("--out", required=True, help="output folder (one subfolder per photo if many)")
+    p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    _add_model_options(p)
+    for flag, role in (("--hand-backend", "hand"), ("--segmenter", "segmenter"),
+                       ("--inpainter", "inpainter"), ("--amodal", "amodal"),
+                       ("--object-backend", "object")):  # fmt: skip
+        p.add_argument(flag, default=None, help=f"{role} backend (see `easyhoi doctor`)")
+    p.add_argument("--hand-mask", help="visible hand mask PNG (replaces segmentation)")
+    p.add_argument("--object-mask", help="visible held-object mask PNG")
+    p.add_argument("--amodal-mask", help="complete (amodal) object mask PNG")
+    p.add_argument("--object-mesh", help="object mesh OBJ/GLB/PLY (e.g. InstantMesh output)")
+    p.add_argument("--hand-params", help="HaMeR hand file (.npz/.json/.pkl)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
+    _add_common(p)
+    p.set_defaults(func=cmd_reconstruct)
+
+    p = sub.add_parser("demo-hand", help="pose the built-in hand model; write meshes + pictures")
+    p.add_argument("--out", default="outputs/demo-hand", help="output folder")
+    _add_model_options(p)
+    _add_common(p)
+    p.set_defaults(func=cmd_demo_hand)
+
+    p = sub.add_parser("doctor", help="versions, backends and what is missing")
+    _add_common(p)
+    p.set_defaults(func=cmd_doctor)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    level = logging.DEBUG if args.verbose else (logging.ERROR if args.quiet else logging.WARNING)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except EasyHOIError as exc:
+        if args.verbose:
+            logger.exception("failed")
+        _err(f"error: {type(exc).__name__}: {exc}")
+        return exc.exit_code
+    except KeyboardInterrupt:
+        _err("interrupted")
+        return EXIT_INTERRUPTED
+    except Exception as exc:  # noqa: BLE001 - last line of defence: no traceback for users
+        if args.verbose:
+            logger.exception("internal error")
+        _err(f"internal error: {type(exc).__name__}: {exc} (rerun with --verbose for details)")
+        return EXIT_INTERNAL
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

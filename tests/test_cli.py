@@ -1,0 +1,47 @@
+import trimesh
+
+from easyhoi.cli import main
+
+
+def test_demo_hand_writes_meshes_and_picture(tmp_path, capsys):
+    rc = main(["demo-hand", "--out", str(tmp_path)])
+    assert rc == 0
+    rest = trimesh.load(tmp_path / "hand_rest.ply", process=False)
+    grasp = trimesh.load(tmp_path / "hand_grasp.ply", process=False)
+    assert len(rest.vertices) == len(grasp.vertices) > 1000
+    assert rest.is_watertight
+    # the grasp pose moved the fingertips
+    assert abs(rest.vertices - grasp.vertices).max() > 0.02
+    assert (tmp_path / "hand_regions.png").stat().st_size > 10_000
+    assert "watertight=True" in capsys.readouterr().out
+
+
+def test_doctor_lists_backends(capsys):
+    assert main(["doctor"]) == 0
+    out = capsys.readouterr().out
+    assert "mediapipe" in out and "silhouette" in out and "classical" in out
+
+
+def test_missing_photo_is_a_named_error_with_exit_2(tmp_path, capsys):
+    rc = main(["reconstruct", str(tmp_path / "nope.jpg"), "--out", str(tmp_path / "o")])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "InvalidInputError" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_unknown_hand_model_choice_exits_2(tmp_path):
+    import pytest
+
+    with pytest.raises(SystemExit) as exc:
+        main(["demo-hand", "--hand-model", "nope", "--out", str(tmp_path)])
+    assert exc.value.code == 2
+
+
+def test_mano_without_file_is_a_clear_error(tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv("EASYHOI_MANO_DIR", raising=False)
+    rc = main(["demo-hand", "--hand-model", "mano", "--mano-dir", str(tmp_path), "--out",
+               str(tmp_path / "o")])  # fmt: skip
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "MANO" in err and "Traceback" not in err
