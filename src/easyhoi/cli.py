@@ -84,6 +84,41 @@ def cmd_reconstruct(args) -> int:
     return EXIT_BATCH_PARTIAL if failures else 0
 
 
+def cmd_batch(args) -> int:
+    """Reconstruct every photo of a folder; ``manifest.jsonl``/``.csv`` record each outcome."""
+    from tqdm import tqdm
+
+    from easyhoi.batch import ReconstructWorker, discover_images, run_batch
+
+    folder = Path(args.folder)
+    images = discover_images(folder, recursive=args.recursive, exclude=[args.out])
+    if not images:
+        hint = "" if args.recursive else " (add --recursive to include subfolders)"
+        raise InvalidInputError(f"no photos found in {folder}{hint}")
+    worker = ReconstructWorker(_config_from_args(args))
+    counts = {"ok": 0, "failed": 0, "skipped": 0}
+    bar = tqdm(total=len(images), unit="photo", desc="batch",
+               disable=args.quiet or not sys.stderr.isatty())  # fmt: skip
+
+    def progress(rec, done: int, total: int) -> None:
+        counts[rec.status] += 1
+        bar.update(1)
+        bar.set_postfix(counts)
+        if rec.status == "failed":
+            tqdm.write(f"{rec.path}: {rec.error_type}: {rec.error}", file=sys.stderr)
+
+    try:
+        summary = run_batch(
+            images, args.out, worker, engine=args.engine, workers=args.workers,
+            resume=args.resume, seed=args.seed, ray_address=args.ray_address,
+            progress=progress, root=folder,
+        )  # fmt: skip
+    finally:
+        bar.close()
+    _say(args, f"batch: {summary.line()}; manifest: {summary.manifest}")
+    return summary.exit_code
+
+
 def cmd_doctor(args) -> int:
     """Versions, available backends and what is missing."""
     import importlib
@@ -253,6 +288,29 @@ def build_parser() -> argparse.ArgumentParser:
                    help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
     _add_common(p)
     p.set_defaults(func=cmd_reconstruct)
+
+    p = sub.add_parser("batch", help="every photo of a folder -> one result folder each")
+    p.add_argument("folder", metavar="DIR", help="folder of photos")
+    p.add_argument("--out", required=True, help="output folder (one subfolder per photo)")
+    p.add_argument("--workers", type=int, default=1, help="parallel workers (default 1)")
+    p.add_argument("--engine", choices=("local", "ray", "inline"), default="local",
+                   help="local process pool (default), ray, or inline (debugging)")  # fmt: skip
+    p.add_argument("--ray-address", default=None,
+                   help="existing Ray cluster (default: a local one on 127.0.0.1)")  # fmt: skip
+    p.add_argument("--resume", action="store_true",
+                   help="skip photos the manifest records as done (folder present)")  # fmt: skip
+    p.add_argument("--recursive", action="store_true", help="include subfolders")
+    p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
+    p.add_argument("--seed", type=int, default=0, help="batch seed (default 0)")
+    _add_model_options(p)
+    for flag, role in (("--hand-backend", "hand"), ("--segmenter", "segmenter"),
+                       ("--inpainter", "inpainter"), ("--amodal", "amodal"),
+                       ("--object-backend", "object")):  # fmt: skip
+        p.add_argument(flag, default=None, help=f"{role} backend (see `easyhoi doctor`)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
+    _add_common(p)
+    p.set_defaults(func=cmd_batch)
 
     p = sub.add_parser("demo-hand", help="pose the built-in hand model; write meshes + pictures")
     p.add_argument("--out", default="outputs/demo-hand", help="output folder")
