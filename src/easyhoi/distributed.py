@@ -10,11 +10,13 @@ else is recorded as an internal error, exit code 70), so one bad photo never sto
 Engines (:func:`execute` yields results in completion order):
 
 ``"local"`` (default)
-    A :class:`concurrent.futures.ProcessPoolExecutor` with the ``"spawn"`` start method and
-    ``workers`` processes. Each process uses ``max(1, cores // workers)`` torch threads. At most
-    ``workers`` tasks are in flight, so a process that dies (killed for memory, a segfault in
-    native code) can be pinned down: the tasks that were running are retried one at a time in a
-    fresh pool, and a task that kills its process again is recorded as failed.
+    A :class:`concurrent.futures.ProcessPoolExecutor` with ``workers`` processes, started with
+    ``"forkserver"`` where the platform has it (a server process imports easyhoi and torch
+    once, then every worker is forked from it in milliseconds; pools restarted after a crash
+    reuse it) and ``"spawn"`` elsewhere. Each process uses ``max(1, cores // workers)`` torch
+    threads. At most ``workers`` tasks are in flight, so a process that dies (killed for memory,
+    a segfault in native code) can be pinned down: the tasks that were running are retried one
+    at a time in a fresh pool, and a task that kills its process again is recorded as failed.
 ``"ray"``
     Ray tasks (the ``[distributed]`` extra). ``ray.init(address=...)`` joins an existing cluster;
     without an address a local cluster bound to 127.0.0.1 with ``num_cpus=workers`` and no
@@ -207,7 +209,7 @@ def execute(
     workers: int = 1,
     threads: int | None = None,
     ray_address: str | None = None,
-    mp_context: str = "spawn",
+    mp_context: str | None = None,
 ) -> Iterator[TaskResult]:
     """Run ``worker`` on every task; yield one :class:`TaskResult` per task as each finishes.
 
@@ -226,8 +228,9 @@ def execute(
     ray_address : str or None
         Address of an existing Ray cluster (``"auto"``, ``"127.0.0.1:6379"``...); None starts a
         local one.
-    mp_context : str
-        Start method of the local pool (``"spawn"`` or ``"forkserver"``).
+    mp_context : str or None
+        Start method of the local pool: ``"forkserver"`` or ``"spawn"`` (None: forkserver where
+        available).
 
     Yields
     ------
@@ -245,6 +248,9 @@ def execute(
         raise InvalidInputError(f"unknown batch engine {engine!r}; available: {', '.join(ENGINES)}")
     if not isinstance(workers, int) or workers < 1:
         raise InvalidInputError(f"workers must be an integer >= 1, got {workers!r}")
+    if mp_context is None:
+        forkserver = "forkserver" in multiprocessing.get_all_start_methods()
+        mp_context = "forkserver" if forkserver else "spawn"
     if mp_context not in ("spawn", "forkserver"):
         raise InvalidInputError(f"mp_context must be 'spawn' or 'forkserver', got {mp_context!r}")
     tasks = list(tasks)
@@ -278,6 +284,9 @@ def _check_picklable(worker) -> None:
 
 def _new_pool(workers: int, threads: int, mp_context: str) -> ProcessPoolExecutor:
     ctx = multiprocessing.get_context(mp_context)
+    if mp_context == "forkserver":
+        # imported once by the fork server (only applies when it starts)
+        ctx.set_forkserver_preload(["easyhoi.distributed"])
     return ProcessPoolExecutor(
         max_workers=workers, mp_context=ctx, initializer=_set_threads, initargs=(threads,)
     )
