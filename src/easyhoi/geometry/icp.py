@@ -28,6 +28,8 @@ from easyhoi.checks import check_finite
 from easyhoi.errors import InvalidInputError
 
 MODES = ("translation", "translation_scale", "rigid", "rigid_scale")
+#: Nearest neighbours searched for a normal-compatible partner when normal_max_angle is set.
+_NORMAL_CANDIDATES = 16
 
 
 @dataclass(frozen=True)
@@ -179,7 +181,9 @@ def icp(
     source_normals : (N, 3), optional
         Unit normals of the source points (rotated with the source).
     normal_max_angle : float, optional
-        Radians; discard pairs whose normals differ by more (needs both normal sets).
+        Radians; pair each source point with the nearest of its 16 nearest targets whose
+        normal differs by at most this angle, and drop it when there is none (needs both
+        normal sets).
     trim_fraction : float
         In [0, 1): discard this fraction of the pairs with the largest distances each iteration.
     init : (R (3, 3), t (3,), s), optional
@@ -229,11 +233,20 @@ def icp(
     it = 0
     while True:
         cur = s * src @ R.T + t
-        dist, idx = tree.query(cur)
-        keep = np.ones(len(src), dtype=bool)
-        if cos_max is not None:
-            cos = np.einsum("ij,ij->i", sn @ R.T, tn[idx])
-            keep &= cos >= cos_max * np.linalg.norm(sn, axis=1)
+        if cos_max is None:
+            dist, idx = tree.query(cur)
+            keep = np.ones(len(src), dtype=bool)
+        else:
+            # nearest target among the k nearest whose normal is compatible
+            k = min(_NORMAL_CANDIDATES, len(tgt))
+            dk, ik = tree.query(cur, k=k)
+            dk, ik = dk.reshape(len(src), k), ik.reshape(len(src), k)
+            rn = sn @ R.T
+            cos = np.einsum("nd,nkd->nk", rn, tn[ik])
+            ok = cos >= cos_max * np.linalg.norm(rn, axis=1, keepdims=True)
+            first = np.argmax(ok, axis=1)
+            rows = np.arange(len(src))
+            dist, idx, keep = dk[rows, first], ik[rows, first], ok[rows, first]
         if trim_fraction > 0 and keep.sum() > 1:
             n_keep = max(1, int(round((1.0 - trim_fraction) * keep.sum())))
             cut = np.sort(dist[keep])[n_keep - 1]

@@ -162,8 +162,7 @@ def fuse_point_cloud(views: list[DepthView], voxel: float) -> tuple[np.ndarray, 
 
 
 def _carve(views, mesh_vertices, mesh_faces, center, radius, bounds, resolution, image_size):
-    from scipy.ndimage import distance_transform_edt
-    from scipy.spatial import cKDTree
+    from scipy.ndimage import binary_dilation
     from skimage.measure import marching_cubes
 
     lo, hi = bounds
@@ -175,34 +174,34 @@ def _carve(views, mesh_vertices, mesh_faces, center, radius, bounds, resolution,
     origin = lo - 2.0 * vox
     axes = [origin[a] + vox * np.arange(shape[a]) for a in range(3)]
     rel = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3) - center
-    field = np.full(len(rel), -np.inf)
+    # Carving gives the side away from the surface: a node is outside when some view sees past
+    # it (its pixel misses the object or the first hit lies behind the node).
+    outside = np.zeros(len(rel), dtype=bool)
     pix = 2.0 * radius / image_size
+    todo = np.arange(len(rel))
     for view in views:
-        # a node seen by no surface pixel is outside by at least its 2D distance to the
-        # silhouette: a continuous value across the silhouette (a constant would erode it)
-        miss = ~np.isfinite(view.depth)
-        sil = distance_transform_edt(miss) * pix
-        ix = np.clip(np.floor((rel @ view.u + radius) / pix).astype(np.int64), 0, image_size - 1)
-        iy = np.clip(np.floor((rel @ view.v + radius) / pix).astype(np.int64), 0, image_size - 1)
-        node_depth = 2.0 * radius - rel @ view.direction
-        hit = ~miss[ix, iy]
-        val = sil[ix, iy]
-        val[hit] = view.depth[ix[hit], iy[hit]] - node_depth[hit]
-        np.maximum(field, val, out=field)
-    inside = (field < 0).reshape(shape)
-    if not inside.any():
+        frame = np.stack([view.u, view.v, view.direction], axis=1)
+        proj = rel[todo] @ frame
+        ix = np.clip(((proj[:, 0] + radius) / pix).astype(np.int64), 0, image_size - 1)
+        iy = np.clip(((proj[:, 1] + radius) / pix).astype(np.int64), 0, image_size - 1)
+        seen_past = view.depth[ix, iy] > 2.0 * radius - proj[:, 2]
+        outside[todo[seen_past]] = True
+        todo = todo[~seen_past]
+    if outside.all():
         raise BackendError("depth carving removed everything: the object is too thin for the grid")
-    # Carving decides the side away from the surface. Within `band` of the surface the views
-    # saw, the value is the exact distance to that surface, signed by its pseudo-normals: this
-    # keeps parts thinner than a pixel that carving erodes, and places the surface exactly.
+    # Near the surface the views saw, the value is the exact distance to it, signed by its
+    # pseudo-normals: this keeps parts thinner than a pixel (which carving erodes) and places
+    # the surface exactly. Candidates: nodes within 2 voxels of a voxel holding a hit.
     seen = np.unique(np.concatenate([v.face_ids for v in views]))
-    seen_faces = mesh_faces[seen]
     band = 1.5 * vox
     pts = np.concatenate([v.points for v in views])
-    near, _ = cKDTree(pts).query(rel + center, distance_upper_bound=band + pix)
-    cand = np.isfinite(near)
-    sdf = np.where(inside.reshape(-1), -band, band)
-    d = pseudonormal_signed_distance(rel[cand] + center, mesh_vertices, seen_faces)
+    idx = np.clip(np.rint((pts - origin) / vox).astype(np.int64), 0, np.array(shape) - 1)
+    cand = np.zeros(shape, dtype=bool)
+    cand[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    cand = binary_dilation(cand, structure=np.ones((3, 3, 3), dtype=bool), iterations=2)
+    cand = cand.reshape(-1)
+    sdf = np.where(outside, band, -band)
+    d = pseudonormal_signed_distance(rel[cand] + center, mesh_vertices, mesh_faces[seen])
     sdf[cand] = np.clip(d, -band, band)
     sdf = sdf.reshape(shape)
     verts, faces, _, _ = marching_cubes(sdf, 0.0, spacing=(vox, vox, vox))
@@ -214,7 +213,7 @@ def _poisson(points, normals, depth, density_quantile):
     ms = ml.MeshSet()
     ms.add_mesh(ml.Mesh(vertex_matrix=points, v_normals_matrix=normals))
     ms.generate_surface_reconstruction_screened_poisson(depth=int(depth), preclean=True)
-    density = ms.current_mesh().vertex_quality_array()
+    density = ms.current_mesh().vertex_scalar_array()
     if density_quantile > 0:
         thr = float(np.quantile(density, density_quantile))
         ms.compute_selection_by_condition_per_vertex(condselect=f"(q < {thr!r})")
