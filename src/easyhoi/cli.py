@@ -119,6 +119,17 @@ def cmd_batch(args) -> int:
     return summary.exit_code
 
 
+def cmd_demo(args) -> int:
+    """Serve the web demo on this machine (needs the [demo] extra: gradio)."""
+    from easyhoi.app import launch
+
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        logger.warning("serving the demo on %s: other machines can reach it", args.host)
+    launch(args.host, args.port, preset=args.preset, max_upload_mb=args.max_upload_mb,
+           quiet=args.quiet)  # fmt: skip
+    return 0
+
+
 def cmd_doctor(args) -> int:
     """Versions, available backends and what is missing."""
     import importlib
@@ -317,6 +328,16 @@ def build_parser() -> argparse.ArgumentParser:
     _add_model_options(p)
     _add_common(p)
     p.set_defaults(func=cmd_demo_hand)
+
+    p = sub.add_parser("demo", help="web demo in the browser (pip install 'easyhoi[demo]')")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to serve on (default 127.0.0.1: this machine only)")  # fmt: skip
+    p.add_argument("--port", type=int, default=7860, help="port (default 7860)")
+    p.add_argument("--preset", default="fast", help="preset selected at start (default fast)")
+    p.add_argument("--max-upload-mb", type=float, default=20.0,
+                   help="largest accepted photo in MB (default 20)")  # fmt: skip
+    _add_common(p)
+    p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("doctor", help="versions, backends and what is missing")
     _add_common(p)
