@@ -10,6 +10,7 @@ import torch
 import trimesh
 
 from easyhoi.errors import InvalidInputError
+from easyhoi.render import soft
 from easyhoi.render._common import bbox_pairs, project_faces
 from easyhoi.render.reference import dense_soft_silhouette
 from easyhoi.render.soft import cull_margin, sigma_from_ndc, soft_log_visibility, soft_silhouette
@@ -113,6 +114,8 @@ def test_culling_evaluates_few_pairs():
     face, pix = bbox_pairs(tri_uv, 128, 128, cull_margin(1.0))
     dense = 128 * 128 * f.shape[0]
     assert 0 < face.numel() < 0.01 * dense
+    used, _ = soft._face_table(tri_uv, 128, 128, cull_margin(1.0), torch.zeros(len(f)).long())
+    assert torch.equal(used, face)  # the renderer evaluates exactly these pairs
     # every generated pair lies inside its face's grown bounding box
     u = (pix % 128).float() + 0.5
     lo = tri_uv[face, :, 0].amin(1) - cull_margin(1.0)
@@ -176,3 +179,22 @@ def test_bad_camera():
         soft_silhouette(np.zeros((3, 3)), [[0, 1, 2]], "camera")
     with pytest.raises(InvalidInputError):
         Camera.from_focal(-5.0, 32, 32)
+
+
+@pytest.mark.slow
+def test_compiled_kernels_match_eager():
+    v, f = _sphere(dtype=torch.float32)
+    cam = _cam(dtype=torch.float32)
+    w = torch.randn(cam.height, cam.width)
+    results = []
+    try:
+        for enabled in (False, True):
+            soft.set_compile(enabled)
+            vv = v.clone().requires_grad_(True)
+            out = soft_silhouette(vv, f, cam)
+            (g,) = torch.autograd.grad((out * w).sum(), vv)
+            results.append((out, g))
+    finally:
+        soft.set_compile(False)
+    assert_close(results[1][0], results[0][0], atol=1e-5)
+    assert_close(results[1][1], results[0][1], atol=1e-3, rtol=1e-4)

@@ -58,36 +58,47 @@ def cull_margin(sigma: float, cull_eps: float = DEFAULT_CULL_EPS) -> float:
     return math.sqrt(sigma * math.log(1.0 / cull_eps))
 
 
-def _pair_kernel(X: torch.Tensor, Y: torch.Tensor, px: torch.Tensor, py: torch.Tensor, inv_sigma):
-    """Per-pair coverage terms (elementwise over pairs; the leading 3 indexes corners/edges).
+def _pair_kernel(ax, ay, bx, by, cx, cy, px, py, inv_sigma: float):
+    """Per-pair coverage terms; every argument and result is a flat (P,) tensor.
+
+    Written as one chain of elementwise operations (no reductions over a small axis) so that
+    ``torch.compile`` fuses it into a single vectorized loop.
 
     Args:
-        X, Y: (3, P) corner coordinates per pair; edge k runs from corner k to (k + 1) % 3.
+        ax, ay, bx, by, cx, cy: (P,) triangle corners; edge k runs from corner k to (k + 1) % 3.
         px, py: (P,) pixel centre.
         inv_sigma: 1 / sigma.
 
     Returns:
         val: (P,) ``log(1 - D) = logsigmoid(-x)``, ``x = delta * d^2 / sigma``.
-        coef: (P,) ``-2 d val / d d^2``, so that ``d val / d corner = -coef * r * weight``.
-        rx, ry: (P,) ``p - q`` with ``q`` the closest boundary point, on edge ``k`` (P,) long at
+        coef: (P,) ``-2 d val / d d^2``, so that ``d val / d corner = coef * weight * r``.
+        rx, ry: (P,) ``p - q`` with ``q`` the closest boundary point, on edge ``e`` (P,) long at
             parameter ``t`` (P,): ``q = (1 - t) start + t end``.
     """
-    EX = torch.roll(X, -1, 0) - X
-    EY = torch.roll(Y, -1, 0) - Y
-    WX = px - X
-    WY = py - Y
-    T = ((WX * EX + WY * EY) / (EX * EX + EY * EY).clamp(min=1e-30)).clamp(0.0, 1.0)
-    RX = WX - T * EX
-    RY = WY - T * EY
-    d2, k = (RX * RX + RY * RY).min(dim=0)
-    CR = EX * WY - EY * WX
-    inside = (CR >= 0).all(dim=0) | (CR <= 0).all(dim=0)
-    sgn = inside.to(X.dtype) * 2.0 - 1.0
+    best = None
+    crosses = []
+    for sx, sy, ex, ey, j in ((ax, ay, bx, by, 0), (bx, by, cx, cy, 1), (cx, cy, ax, ay, 2)):
+        dx, dy = ex - sx, ey - sy
+        wx, wy = px - sx, py - sy
+        t = ((wx * dx + wy * dy) / (dx * dx + dy * dy).clamp(min=1e-30)).clamp(0.0, 1.0)
+        rx, ry = wx - t * dx, wy - t * dy
+        d2 = rx * rx + ry * ry
+        crosses.append(dx * wy - dy * wx)
+        if best is None:
+            best = [d2, rx, ry, t, torch.zeros_like(px, dtype=torch.long)]
+            continue
+        c = d2 < best[0]
+        best = [torch.where(c, d2, best[0]), torch.where(c, rx, best[1]),
+                torch.where(c, ry, best[2]), torch.where(c, t, best[3]),
+                torch.where(c, j, best[4])]  # fmt: skip
+    c0, c1, c2 = crosses
+    inside = ((c0 >= 0) & (c1 >= 0) & (c2 >= 0)) | ((c0 <= 0) & (c1 <= 0) & (c2 <= 0))
+    d2, rx, ry, t, e = best
+    sgn = torch.where(inside, 1.0, -1.0).to(px.dtype)
     x = sgn * d2 * inv_sigma
     val = torch.nn.functional.logsigmoid(-x)
     coef = torch.sigmoid(x) * sgn * (2.0 * inv_sigma)
-    kk = k.unsqueeze(0)
-    return val, coef, RX.gather(0, kk)[0], RY.gather(0, kk)[0], T.gather(0, kk)[0], k
+    return val, coef, rx, ry, t, e
 
 
 def _face_table(tri_uv: torch.Tensor, height: int, width: int, margin: float, base: torch.Tensor):
@@ -130,7 +141,7 @@ def _fused_forward(tri6, table, face, width: int, inv_sigma: float, num_pix: int
     g = tri6[:, face]
     px = col.to(tri6.dtype) + 0.5
     py = row.to(tri6.dtype) + 0.5
-    val, coef, rx, ry, t, e = _pair_kernel(g[0::2], g[1::2], px, py, inv_sigma)
+    val, coef, rx, ry, t, e = _pair_kernel(*g.unbind(0), px, py, inv_sigma)
     out = torch.zeros(num_pix, dtype=tri6.dtype, device=tri6.device).index_add_(0, pix, val)
     return out, pix, coef, rx, ry, t, e
 
