@@ -40,7 +40,7 @@ from easyhoi.config import CameraStageConfig, OptimConfig
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import StageResult
 from easyhoi.optim.losses import sinkhorn_mask_loss, soft_iou_loss
-from easyhoi.optim.scene import Scene, StageLoop, hard_iou, phase_sizes
+from easyhoi.optim.scene import SILHOUETTE_SIGMA, Scene, StageLoop, hard_iou, phase_sizes
 from easyhoi.render.soft import soft_silhouette
 from easyhoi.structures import Camera
 
@@ -140,7 +140,9 @@ def initial_camera(
         t = fit_box(verts, R, focal, principal, box, c)
         cam = Camera.from_focal(focal, W, H, R=R, t=t, dtype=dtype)
         with torch.no_grad():
-            sil = soft_silhouette(scene.object_verts, scene.object_faces, cam.resized(w, h))
+            sil = soft_silhouette(
+                scene.object_verts, scene.object_faces, cam.resized(w, h), SILHOUETTE_SIGMA
+            )
             loss = float(soft_iou_loss(sil, target))
         notes.append({"yaw_deg": yaw, "iou_loss": loss})
         if best is None or loss < best[0]:
@@ -225,7 +227,7 @@ def fit_camera(
         phase_reason = "max_iters"
         for _ in range(n_iters):
             cam = params.camera().resized(w, h)
-            sil = soft_silhouette(scene.object_verts, scene.object_faces, cam)
+            sil = soft_silhouette(scene.object_verts, scene.object_faces, cam, SILHOUETTE_SIGMA)
             iou = soft_iou_loss(sil, target)
             total = cfg.iou_weight * iou
             terms = {"iou": float(iou)}
@@ -258,7 +260,7 @@ def fit_camera(
             stop_reason = phase_reason
             with torch.no_grad():
                 cam = params.camera().resized(w, h)
-                sil = soft_silhouette(scene.object_verts, scene.object_faces, cam)
+                sil = soft_silhouette(scene.object_verts, scene.object_faces, cam, SILHOUETTE_SIGMA)
                 final_iou = hard_iou(sil, target)
     with torch.no_grad():
         camera = params.camera().detach()

@@ -1,0 +1,464 @@
+"""Stage 2, HOI contact alignment: place the hand in the object frame (pose, translation, scale).
+
+State. The articulation stays the estimator's. The hand is kept in the OBJECT CAMERA's frame in
+metres, ``V_cam = Rot(r) (V0 - c0) + c0 + L * delta`` (``V0``: the initial hand, ``c0`` its
+centroid, ``L`` its largest side, so a step of lr = 1e-2 moves it by 1 % of its size), together
+with the metric scale ``m`` (metres per object unit). Object-frame vertices are
+``R^T (V_cam / m - t)``. The projection of the hand depends only on ``V_cam``; ``m`` moves the
+hand along the camera rays (the depth relative to the object, which the image does not fix).
+
+Initialisation from the image evidence (:func:`initial_hand`): the estimator's hand is moved to
+the object camera so that its centroid keeps its pixel and its apparent size (depth scaled by
+the ratio of focal lengths); ``m`` is the median ratio of the hand's metric depth to the
+object's depth (object units) over the pixels where the rendered hand overlaps M^_o, taking the
+object's FRONT surface where M_h shows the hand (the hand is in front there) and its BACK
+surface (farthest of ``peel_layers`` hits) where the hand is hidden: the hand is put at the
+depth where it meets the object in the photo (not at the object's centre).
+
+Loop (Adam, coarse-to-fine phases sharing ``max_iters``):
+
+(a) mask-constrained optimization of ``r`` and ``delta``: soft IoU between the VISIBLE rendered
+    hand (occluded by the object) and M_h;
+(b) at the iterations ``register_at``: first the depth along the rays is re-chosen by
+    :func:`scan_scale` (photo occlusions + touching), then contact registration
+    (:func:`register_contacts`):
+    M_front = M^_o minus M_o, M_back = M^_h minus M_h (M^_h rendered from the current hand),
+    restricted to M^_o (hidden BY THE OBJECT: pixels where the current hand merely misses M_h
+    would otherwise pull the registration); depth peeling (``peel_layers``) along the rays
+    through those pixels; object: nearest hit for front pixels, farthest for back pixels;
+    hand: the same among hits on palmar faces; only rays that meet both surfaces count; an
+    iterative translation-only ICP (:func:`easyhoi.geometry.icp.icp`) of the hand points onto the
+    object points gives ``D`` (object frame). It is applied so that the hand's contact centroid
+    ``q`` moves to ``q + D``: the depth component as a change of ``m`` (a scaling about the
+    camera centre, which keeps the hand's projection and so the mask fit), the image-plane
+    remainder as a translation (with ``optimise_scale=False``: all of it as a translation).
+
+Best state: the states from the first registration on compete (before it the depth is not
+yet aligned), including the state right after each depth scan (before its ICP move, which can
+be biased where the two surfaces differ in shape, e.g. a flat palm behind a cylinder); the
+score is ``IoU loss + contact distance``, the contact distance being ``|min_v d(v)|`` over
+the hand vertices in normalised object units (0 when the hand touches the surface without
+penetrating it). Stopping: IoU loss < ``stop_loss`` once every registration
+that fits under ``max_iters`` ran, or ``patience`` iterations without improvement after the last
+registration, or ``max_iters``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+import numpy as np
+import torch
+
+from easyhoi.config import ContactStageConfig, OptimConfig
+from easyhoi.geometry.icp import icp
+from easyhoi.geometry.transforms import axis_angle_to_matrix
+from easyhoi.hoi import HOIInput, StageResult
+from easyhoi.optim.losses import soft_iou_loss
+from easyhoi.optim.scene import (
+    Scene,
+    StageLoop,
+    camera_hand_to_object,
+    hand_in_camera,
+    hard_iou,
+    move_hand,
+    phase_sizes,
+    rest_wrist,
+)
+from easyhoi.render.raster import depth_map, peel_pixels, rasterize
+from easyhoi.structures import Camera, HandParams
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["ContactState", "fit_contact", "initial_hand", "register_contacts"]
+
+#: Smallest number of contact points on each side for a registration to run.
+MIN_CONTACT_POINTS = 3
+#: Factors of the initial metric scale tried by :func:`scan_scale` (log-spaced, 1/2 to 2).
+SCALE_SCAN = tuple(float(x) for x in np.geomspace(0.5, 2.0, 41))
+#: Bounds of the metric-scale change one registration may apply (guards degenerate ICP).
+MAX_SCALE_STEP = 2.0
+
+
+def _origin_camera(camera: Camera) -> Camera:
+    """The same intrinsics with identity extrinsics (to work in the camera's own frame)."""
+    dt = camera.K.dtype
+    return Camera(camera.K.detach(), torch.eye(3, dtype=dt), torch.zeros(3, dtype=dt),
+                  camera.width, camera.height)  # fmt: skip
+
+
+class ContactState:
+    """The stage's variables (see the module docstring) and conversions."""
+
+    def __init__(self, scene: Scene, params_cam: HandParams, camera: Camera, metric_scale: float):
+        dt = scene.dtype
+        self.scene = scene
+        self.camera = camera.detach().to(dt)
+        self.params_cam = params_cam.detach().to(dtype=dt)
+        with torch.no_grad():
+            self.v0 = scene.hand_model(self.params_cam).vertices[0]
+        self.c0 = self.v0.mean(0)
+        self.L = float((self.v0.max(0).values - self.v0.min(0).values).max())
+        self.r = torch.zeros(3, dtype=dt, requires_grad=True)
+        self.delta = torch.zeros(3, dtype=dt, requires_grad=True)
+        self.m = float(metric_scale)
+
+    def verts_cam(self) -> torch.Tensor:
+        """(V, 3) hand vertices in the object camera's frame, metres."""
+        Rr = axis_angle_to_matrix(self.r)
+        return (self.v0 - self.c0) @ Rr.T + self.c0 + self.L * self.delta
+
+    def verts_obj(self) -> torch.Tensor:
+        """(V, 3) hand vertices in the object frame, object units."""
+        return (self.verts_cam() / self.m - self.camera.t) @ self.camera.R
+
+    def state(self):
+        return (self.r.detach().clone(), self.delta.detach().clone(), self.m)
+
+    def load(self, state) -> None:
+        with torch.no_grad():
+            self.r.copy_(state[0])
+            self.delta.copy_(state[1])
+        self.m = float(state[2])
+
+    def hand_params(self) -> HandParams:
+        """Current hand in the metric object frame."""
+        with torch.no_grad():
+            Rr = axis_angle_to_matrix(self.r)
+            t = self.c0 - Rr @ self.c0 + self.L * self.delta
+            wrist = rest_wrist(self.scene.hand_model, self.params_cam.betas)
+            p_cam = move_hand(self.params_cam, Rr, t, wrist.to(Rr.dtype))
+            return camera_hand_to_object(p_cam, self.camera, self.m, self.scene.hand_model)
+
+    def apply_translation(self, D: np.ndarray, anchor: np.ndarray, use_scale: bool) -> dict:
+        """Move the hand so the object-frame point ``anchor`` goes to ``anchor + D``."""
+        R = self.camera.R.detach().double().numpy()
+        t = self.camera.t.detach().double().numpy()
+        q = R @ anchor + t
+        q_new = R @ (anchor + D) + t
+        k = 1.0
+        if use_scale and q[2] > 0 and q_new[2] > 0:
+            k = float(np.clip(q_new[2] / q[2], 1.0 / MAX_SCALE_STEP, MAX_SCALE_STEP))
+        self.m = self.m / k
+        shift = (q_new - k * q) * self.m  # metres, object camera frame
+        with torch.no_grad():
+            self.delta += torch.as_tensor(shift / self.L, dtype=self.delta.dtype)
+        return {"scale_factor": 1.0 / k, "shift_m": float(np.linalg.norm(shift))}
+
+
+def scan_scale(
+    scene: Scene,
+    verts_cam: torch.Tensor,
+    camera: Camera,
+    m0: float,
+    sdf_resolution: int,
+    render_size: int,
+) -> tuple[float, float]:
+    """1D search of the metric scale along the camera rays around ``m0``.
+
+    Every candidate ``m`` in :data:`SCALE_SCAN` times ``m0`` keeps the hand's projection and
+    changes only its depth relative to the object. Score: ``(1 - IoU(visible hand, M_h)) +
+    |min_v d(v)|`` (hard occlusion at half ``render_size``; d in normalised object units): the
+    depth where the photo's occlusions hold and the hand touches the object's surface.
+
+    Parameters
+    ----------
+    verts_cam : (V, 3) hand vertices in the object camera frame, metres.
+    camera : object camera (full image size).
+
+    Returns
+    -------
+    (m, score) of the best candidate.
+    """
+    h, w = scene.render_size(0.5, render_size)
+    cam = camera.detach().to(scene.dtype).resized(w, h)
+    target = scene.masks_at(h, w)["hand"] > 0.5
+    zo = scene.object_depth(cam)
+    R, t = cam.R, cam.t
+    best = (m0, math.inf)
+    with torch.no_grad():
+        for f in SCALE_SCAN:
+            m = m0 * float(f)
+            v = (verts_cam.to(scene.dtype) / m - t) @ R
+            zh = depth_map(v, scene.hand_model.faces, cam)
+            vis = torch.isfinite(zh) & (zh <= zo)
+            union = int((vis | target).sum())
+            iou = float((vis & target).sum()) / union if union else 0.0
+            score = (1.0 - iou) + abs(float(scene.sdf(v, sdf_resolution).min()))
+            if score < best[1]:
+                best = (m, score)
+    return best
+
+
+def initial_hand(
+    scene: Scene,
+    inp: HOIInput,
+    camera: Camera,
+    render_size: int,
+    peel_layers: int = 4,
+    sdf_resolution: int = 48,
+) -> tuple[HandParams, float, dict]:
+    """Place the estimator's hand in the object camera (see the module docstring).
+
+    Returns
+    -------
+    params_cam : HandParams
+        Hand in the object camera's frame, metres.
+    metric_scale : float
+        Metres per object unit.
+    note : dict
+        JSON-ready description (overlap pixels used, depths).
+    """
+    model = scene.hand_model
+    dt = scene.dtype
+    p_hc = hand_in_camera(inp.hand_params.to(dtype=dt), inp.hand_camera.to(dt), model)
+    with torch.no_grad():
+        c = model(p_hc).vertices[0].mean(0)
+    Kh, Ko = inp.hand_camera.K.to(dt), camera.K.detach().to(dt)
+    k = math.sqrt(float(Ko[0, 0] * Ko[1, 1]) / float(Kh[0, 0] * Kh[1, 1]))
+    cam_h0, cam_o0 = _origin_camera(inp.hand_camera.to(dt)), _origin_camera(camera.to(dt))
+    uv, z = cam_h0.project(c)
+    c_new = cam_o0.unproject(uv, z * k)
+    p_oc = HandParams(p_hc.global_orient, p_hc.transl + (c_new - c), p_hc.pose, p_hc.betas,
+                      p_hc.side)  # fmt: skip
+    h, w = scene.render_size(1.0, render_size)
+    with torch.no_grad():
+        verts = model(p_oc).vertices[0]
+        zh = depth_map(verts, model.faces, cam_o0.resized(w, h))
+        layers = rasterize(scene.object_verts, scene.object_faces, camera.detach().resized(w, h),
+                           num_layers=peel_layers).depth  # fmt: skip
+    zo_front = layers[..., 0]
+    zo_back = torch.where(torch.isfinite(layers), layers, -torch.inf).max(dim=-1).values
+    masks = scene.masks_at(h, w)
+    sel = torch.isfinite(zh) & torch.isfinite(zo_front) & (masks["amodal"] > 0.5)
+    # where the photo shows the hand it is in front of the object (touching its front surface);
+    # where the object hides it, it is behind (touching the back surface)
+    zo = torch.where(masks["hand"] > 0.5, zo_front, zo_back)
+    if int(sel.sum()) > 0:
+        m = float(torch.median(zh[sel] / zo[sel]))
+        how = "overlap_depth_ratio"
+    else:
+        obj_c = camera.world_to_camera(scene.center.to(camera.K.dtype)).detach()
+        m = float(c_new[2]) / float(obj_c[2])
+        how = "centroid_depth_ratio"
+    if not (math.isfinite(m) and m > 0):
+        m = 1.0
+        how = "fallback_unit"
+    m_overlap = m
+    m, scan_score = scan_scale(scene, verts, camera, m, sdf_resolution, render_size)
+    note = {
+        "metric_scale_init": m,
+        "metric_scale_overlap": m_overlap,
+        "scale_from": how,
+        "scan_score": scan_score,
+        "overlap_pixels": int(sel.sum()),
+        "focal_ratio": k,
+    }
+    return p_oc, m, note
+
+
+def _pixel_uv(mask: torch.Tensor) -> torch.Tensor:
+    rows, cols = torch.nonzero(mask, as_tuple=True)
+    return torch.stack([cols, rows], dim=-1).to(torch.float64) + 0.5
+
+
+def _pick(frags, keep: torch.Tensor, farthest: bool) -> torch.Tensor:
+    """(N,) index of the nearest / farthest kept layer per ray; -1 where none is kept."""
+    K = keep.shape[1]
+    idx = torch.arange(K).expand_as(keep)
+    if farthest:
+        score = torch.where(keep, idx, torch.full_like(idx, -1))
+        best = score.max(dim=1).values
+    else:
+        score = torch.where(keep, idx, torch.full_like(idx, K))
+        best = score.min(dim=1).values
+        best = torch.where(best == K, torch.full_like(best, -1), best)
+    return best
+
+
+def _hits(frags, keep, farthest):
+    sel = _pick(frags, keep, farthest)
+    ok = sel >= 0
+    rows = torch.nonzero(ok, as_tuple=True)[0]
+    return frags.points.detach()[rows, sel[ok]], ok
+
+
+def register_contacts(
+    scene: Scene,
+    hand_verts: torch.Tensor,
+    camera: Camera,
+    masks: dict,
+    cfg: ContactStageConfig,
+) -> tuple[np.ndarray | None, np.ndarray | None, dict]:
+    """Contact registration at one resolution.
+
+    Parameters
+    ----------
+    scene : Scene
+    hand_verts : (V, 3) hand vertices in the object frame (object units).
+    camera : Camera at the render resolution.
+    masks : dict from :meth:`Scene.masks_at` at that resolution.
+    cfg : ContactStageConfig
+
+    Returns
+    -------
+    D : (3,) ICP translation (object frame) or None when too few contact points.
+    anchor : (3,) centroid of the hand contact points or None.
+    info : dict with point counts and the ICP RMSE history.
+    """
+    v = hand_verts.detach()
+    faces = scene.hand_model.faces
+    front = (masks["amodal"] > 0.5) & ~(masks["object"] > 0.5)
+    zh = depth_map(v, faces, camera.detach())
+    back = torch.isfinite(zh) & ~(masks["hand"] > 0.5) & (masks["amodal"] > 0.5)
+    info = {"front_pixels": int(front.sum()), "back_pixels": int(back.sum())}
+    hand_pts, obj_pts = [], []
+    palmar = scene.regions.palmar_faces
+    cam = camera.detach()
+    for mask, farthest in ((front, False), (back, True)):
+        if not bool(mask.any()):
+            continue
+        uv = _pixel_uv(mask).to(cam.K.dtype)
+        fo = peel_pixels(scene.object_verts, scene.object_faces, cam, uv, cfg.peel_layers)
+        fh = peel_pixels(v, faces, cam, uv, cfg.peel_layers)
+        keep_h = fh.face_ids >= 0
+        if cfg.palmar_only:
+            keep_h = keep_h & palmar[fh.face_ids.clamp(min=0)]
+        p_o, ok_o = _hits(fo, fo.face_ids >= 0, farthest)
+        p_h, ok_h = _hits(fh, keep_h, farthest)
+        both = ok_o & ok_h  # rays that meet both surfaces
+        obj_pts.append(p_o[both[ok_o]])
+        hand_pts.append(p_h[both[ok_h]])
+    src = torch.cat(hand_pts).double().numpy() if hand_pts else np.zeros((0, 3))
+    tgt = torch.cat(obj_pts).double().numpy() if obj_pts else np.zeros((0, 3))
+    info.update({"hand_points": len(src), "object_points": len(tgt)})
+    if len(src) < MIN_CONTACT_POINTS or len(tgt) < MIN_CONTACT_POINTS:
+        info["skipped"] = "too few contact points"
+        return None, None, info
+    res = icp(
+        src,
+        tgt,
+        mode="translation",
+        max_iters=max(1, cfg.icp_iters),
+        tol=cfg.icp_tolerance,
+        trim_fraction=cfg.icp_trim_fraction,
+    )
+    info.update({
+        "icp_iterations": int(res.iterations),
+        "rmse_first": float(res.rmse[0]),
+        "rmse_last": float(res.rmse[-1]),
+        "translation": [float(x) for x in res.t],
+    })  # fmt: skip
+    return res.t, src.mean(axis=0), info
+
+
+def _contact_distance(scene: Scene, verts_obj: torch.Tensor, sdf_resolution: int) -> float:
+    with torch.no_grad():
+        return abs(float(scene.sdf(verts_obj, sdf_resolution).min()))
+
+
+def fit_contact(
+    scene: Scene,
+    state: ContactState,
+    cfg: ContactStageConfig,
+    optim_cfg: OptimConfig,
+    progress=None,
+) -> StageResult:
+    """Run stage 2 on ``state`` (modified in place; ends at the best state).
+
+    Returns
+    -------
+    StageResult
+        ``hand_params`` in the metric object frame, ``metric_scale``, history (``iou``,
+        ``contact_dist``, ``total``), and ``extra["registrations"]`` (one dict per registration).
+    """
+    start = time.perf_counter()
+    loop = StageLoop("contact", cfg.max_iters, optim_cfg.history_every, progress)
+    opt = torch.optim.Adam([state.r, state.delta], lr=cfg.lr)
+    sdf_res = optim_cfg.refine.sdf_resolution
+    due = [r for r in cfg.register_at if r < cfg.max_iters]
+    registrations: list[dict] = []
+    it, stop_reason = 0, "max_iters"
+    sizes = phase_sizes(cfg.max_iters, len(cfg.resolution_schedule))
+    final_iou = None
+    for phase, (frac, n_iters) in enumerate(zip(cfg.resolution_schedule, sizes, strict=True)):
+        last_phase = phase == len(sizes) - 1
+        h, w = scene.render_size(frac, optim_cfg.render_size)
+        masks = scene.masks_at(h, w)
+        cam = state.camera.resized(w, h)
+        best_total, since_best = math.inf, 0
+        phase_reason = "max_iters"
+        for _ in range(n_iters):
+            if due and it >= due[0]:
+                due.pop(0)
+                if not registrations:
+                    loop.reset_best()  # only aligned states (after the first) compete
+                with torch.no_grad():
+                    m_before = state.m
+                    state.m, _ = scan_scale(
+                        scene, state.verts_cam(), state.camera, state.m, sdf_res,
+                        optim_cfg.render_size,
+                    )  # fmt: skip
+                    v = state.verts_obj()
+                    _, vis, _ = scene.hand_silhouettes(v, cam)
+                    iou_scan = float(soft_iou_loss(vis, masks["hand"]))
+                    loop.offer(iou_scan + _contact_distance(scene, v, sdf_res), state.state(), it)
+                D, anchor, info = register_contacts(scene, v, cam, masks, cfg)
+                info["scan_scale_factor"] = state.m / m_before
+                info["iter"] = it
+                if D is not None:
+                    info.update(state.apply_translation(D, anchor, cfg.optimise_scale))
+                info["metric_scale"] = state.m
+                registrations.append(info)
+                best_total, since_best = math.inf, 0
+            verts = state.verts_obj()
+            _, visible, _ = scene.hand_silhouettes(verts, cam)
+            iou = soft_iou_loss(visible, masks["hand"])
+            cdist = _contact_distance(scene, verts.detach(), sdf_res)
+            score = float(iou.detach()) + cdist
+            terms = {"iou": float(iou.detach()), "contact_dist": cdist, "total": score}
+            loop.record(it, terms)
+            loop.offer(score, state.state(), it)
+            if not due:
+                if float(iou) < cfg.stop_loss:
+                    phase_reason = "stop_loss"
+                    break
+                if score < best_total - cfg.min_delta:
+                    best_total, since_best = score, 0
+                else:
+                    since_best += 1
+                if cfg.patience and since_best >= cfg.patience:
+                    phase_reason = "patience"
+                    break
+            opt.zero_grad(set_to_none=True)
+            iou.backward()
+            opt.step()
+            it += 1
+        if loop.best_state is not None:
+            state.load(loop.best_state)
+        if last_phase:
+            stop_reason = phase_reason
+            with torch.no_grad():
+                _, visible, _ = scene.hand_silhouettes(state.verts_obj(), cam)
+                final_iou = hard_iou(visible, masks["hand"])
+    with torch.no_grad():
+        cdist = _contact_distance(scene, state.verts_obj(), sdf_res)
+    extra = {
+        "registrations": registrations,
+        "final_mask_iou": final_iou,
+        "contact_distance": cdist,
+        "best_iter": loop.best_iter,
+    }
+    return StageResult(
+        name="contact",
+        hand_params=state.hand_params(),
+        camera=state.camera,
+        losses=loop.history,
+        seconds=time.perf_counter() - start,
+        iterations=it,
+        metric_scale=state.m,
+        stop_reason=stop_reason,
+        extra=extra,
+    )

@@ -1,0 +1,182 @@
+"""Stage 3, hand parameter refinement: global pose and articulation with the combined loss.
+
+Variables (metric object frame, see :mod:`easyhoi.optim.scene`): ``global_orient`` and ``transl``
+(Adam, ``lr_global``) and the 45 articulation parameters (``lr_pose``); the shape and the metric
+scale ``m`` stay fixed. Object-frame vertices are ``model(params).vertices / m``. The loss is::
+
+    L = hand_mask_weight   * soft_iou(visible hand, M_h)
+      + penetration_weight * (1/V) sum_v max(0, -d(v))      (d below penetration_threshold)
+      + contact_weight     * sum_{v in contact zones} max(0, d(v))
+      + reg_weight         * ||theta - theta_0||_1
+
+with ``d`` the object SDF (trilinear lookup in an ``sdf_resolution``^3 grid) in normalised
+object units (object units / the object's largest side). A term with weight 0 is not computed.
+Adam over coarse-to-fine phases; each phase's lowest-loss state seeds the next; the last phase's
+best state is returned. Stopping: ``patience`` or the phase's share of ``max_iters``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import torch
+
+from easyhoi.config import OptimConfig, RefineStageConfig
+from easyhoi.hoi import StageResult
+from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
+from easyhoi.optim.scene import Scene, StageLoop, hard_iou, phase_sizes
+from easyhoi.structures import Camera, HandParams
+
+__all__ = ["refine_terms", "fit_refine"]
+
+
+def refine_terms(
+    scene: Scene,
+    params: HandParams,
+    metric_scale: float,
+    theta0: torch.Tensor,
+    cfg: RefineStageConfig,
+    camera: Camera | None = None,
+    masks: dict | None = None,
+) -> dict:
+    """The weighted loss terms of stage 3 for ``params`` (differentiable).
+
+    Parameters
+    ----------
+    scene : Scene
+    params : HandParams (batch 1), metric object frame.
+    metric_scale : float, metres per object unit.
+    theta0 : (1, 45) estimator articulation.
+    cfg : RefineStageConfig (weights, threshold, SDF resolution).
+    camera : Camera at the render resolution (needed when the mask term is on).
+    masks : dict from :meth:`Scene.masks_at` at that resolution.
+
+    Returns
+    -------
+    dict of str -> () tensor: the unweighted terms present (``mask``, ``penetration``,
+    ``contact``, ``reg``) and ``total`` (weighted sum).
+    """
+    verts = scene.hand_model(params).vertices[0] / metric_scale
+    terms: dict[str, torch.Tensor] = {}
+    total = verts.new_zeros(())
+    if cfg.hand_mask_weight > 0:
+        _, visible, _ = scene.hand_silhouettes(verts, camera)
+        terms["mask"] = soft_iou_loss(visible, masks["hand"])
+        total = total + cfg.hand_mask_weight * terms["mask"]
+    if cfg.penetration_weight > 0 or cfg.contact_weight > 0:
+        d = scene.sdf(verts, cfg.sdf_resolution)
+        if cfg.penetration_weight > 0:
+            terms["penetration"] = penetration_loss(d, cfg.penetration_threshold)
+            total = total + cfg.penetration_weight * terms["penetration"]
+        if cfg.contact_weight > 0:
+            dc = d[scene.regions.contact_vertices]
+            terms["contact"] = contact_loss(dc, cfg.contact_max_distance)
+            total = total + cfg.contact_weight * terms["contact"]
+    if cfg.reg_weight > 0:
+        terms["reg"] = pose_reg_loss(params.pose, theta0)
+        total = total + cfg.reg_weight * terms["reg"]
+    terms["total"] = total
+    return terms
+
+
+def fit_refine(
+    scene: Scene,
+    params0: HandParams,
+    metric_scale: float,
+    camera: Camera,
+    cfg: RefineStageConfig,
+    optim_cfg: OptimConfig,
+    theta0: torch.Tensor | None = None,
+    progress=None,
+) -> tuple[HandParams, StageResult]:
+    """Run stage 3 from ``params0`` (metric object frame).
+
+    Parameters
+    ----------
+    theta0 : (1, 45) or None
+        Articulation the regulariser pulls towards (default: ``params0.pose``).
+
+    Returns
+    -------
+    params : HandParams, the refined hand (metric object frame, detached).
+    result : StageResult with the history of every term.
+    """
+    start = time.perf_counter()
+    dt = scene.dtype
+    p0 = params0.detach().to(dtype=dt)
+    theta0 = (p0.pose if theta0 is None else theta0.to(dt)).detach().clone()
+    go = p0.global_orient.clone().requires_grad_(cfg.optimise_global)
+    tr = p0.transl.clone().requires_grad_(cfg.optimise_global)
+    pose = p0.pose.clone().requires_grad_(cfg.optimise_pose)
+    groups = []
+    if cfg.optimise_global:
+        groups.append({"params": [go, tr], "lr": cfg.lr_global})
+    if cfg.optimise_pose:
+        groups.append({"params": [pose], "lr": cfg.lr_pose})
+    opt = torch.optim.Adam(groups) if groups else None
+    loop = StageLoop("refine", cfg.max_iters, optim_cfg.history_every, progress)
+    current = lambda: p0.__class__(go, tr, pose, p0.betas, p0.side)  # noqa: E731
+    it, stop_reason = 0, "max_iters"
+    camera = camera.detach().to(dt)
+    sizes = phase_sizes(cfg.max_iters, len(cfg.resolution_schedule)) if opt else [0]
+    final_iou = None
+    for phase, (frac, n_iters) in enumerate(zip(cfg.resolution_schedule, sizes, strict=False)):
+        last_phase = phase == len(sizes) - 1
+        h, w = scene.render_size(frac, optim_cfg.render_size)
+        masks = scene.masks_at(h, w)
+        cam = camera.resized(w, h)
+        loop.reset_best()
+        best_total, since_best = math.inf, 0
+        phase_reason = "max_iters" if opt else "nothing_to_optimise"
+        for _ in range(n_iters):
+            terms = refine_terms(scene, current(), metric_scale, theta0, cfg, cam, masks)
+            total = terms["total"]
+            plain = {k: float(v.detach()) for k, v in terms.items()}
+            loop.record(it, plain)
+            state = (go.detach().clone(), tr.detach().clone(), pose.detach().clone())
+            loop.offer(plain["total"], state, it)
+            if plain["total"] < best_total - cfg.min_delta:
+                best_total, since_best = plain["total"], 0
+            else:
+                since_best += 1
+            if cfg.patience and since_best >= cfg.patience:
+                phase_reason = "patience"
+                break
+            if not total.requires_grad:
+                phase_reason = "no_active_term"
+                break
+            opt.zero_grad(set_to_none=True)
+            total.backward()
+            opt.step()
+            it += 1
+        if loop.best_state is not None:
+            with torch.no_grad():
+                for p, s in zip((go, tr, pose), loop.best_state, strict=True):
+                    p.copy_(s)
+        if last_phase:
+            stop_reason = phase_reason
+            with torch.no_grad():
+                verts = scene.hand_model(current()).vertices[0] / metric_scale
+                _, visible, _ = scene.hand_silhouettes(verts, cam)
+                final_iou = hard_iou(visible, masks["hand"])
+    params = current().detach().clone()
+    with torch.no_grad():
+        final = refine_terms(scene, params, metric_scale, theta0, cfg, cam, masks)
+    extra = {
+        "final_mask_iou": final_iou,
+        "final_terms": {k: float(v) for k, v in final.items()},
+        "best_iter": loop.best_iter,
+    }
+    result = StageResult(
+        name="refine",
+        hand_params=params,
+        camera=camera,
+        losses=loop.history,
+        seconds=time.perf_counter() - start,
+        iterations=it,
+        metric_scale=float(metric_scale),
+        stop_reason=stop_reason,
+        extra=extra,
+    )
+    return params, result

@@ -1,0 +1,228 @@
+"""The three-stage prior-guided optimizer (METHOD.md section 2.2): public entry point.
+
+:func:`optimize` turns an :class:`~easyhoi.hoi.HOIInput` into an :class:`~easyhoi.hoi.HOIResult`:
+
+1. ``initial``: the starting camera (:func:`easyhoi.optim.camera.initial_camera`) and the
+   estimator's hand placed in it (:func:`easyhoi.optim.contact.initial_hand`);
+2. ``camera`` (stage 1), ``contact`` (stage 2), ``refine`` (stage 3), each when enabled
+   (``config.run_camera`` / ``run_contact`` / ``run_refine``); a disabled stage keeps the state.
+   With no stage enabled the result is the initial state (for ablations).
+
+Conventions (see :mod:`easyhoi.optim.scene` and :mod:`easyhoi.hoi`): the global frame is the
+object's canonical frame in object units; ``metric_scale`` ``m`` is metres per object unit,
+recovered from the hand's known (metric) size: the hand is placed at the depth where it meets
+the object, so ``m`` is the ratio between the hand's metric depth and the object-unit depth
+there. ``HOIResult.hand_params`` live in the metric object frame: ``model(params).vertices / m
+== HOIResult.hand_vertices`` (object units). The camera maps object units to pixels.
+
+Plausibility (``HOIResult.plausibility``, metres -> cm as :mod:`easyhoi.metrics`):
+``penetration_depth_cm``, ``intersection_volume_cm3`` (the "solid" variant),
+``in_contact`` (any vertex inside or within 5 mm), ``contact_distance_cm`` (signed SDF distance
+of the closest hand vertex; negative = penetrating), ``hand_mask_iou`` (visible hand vs M_h)
+and ``object_mask_iou`` (object vs M^_o), hard masks at ``render_size``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+import torch
+
+from easyhoi.config import EasyHOIConfig, OptimConfig, get_preset, to_dict
+from easyhoi.errors import EasyHOIError, InvalidInputError, OptimizationError
+from easyhoi.hoi import HOIInput, HOIResult, StageResult
+from easyhoi.optim.camera import fit_camera, initial_camera
+from easyhoi.optim.contact import ContactState, fit_contact, initial_hand
+from easyhoi.optim.refine import fit_refine
+from easyhoi.optim.scene import Scene, camera_hand_to_object, hard_iou
+from easyhoi.render.raster import depth_map
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["optimize", "plausibility"]
+
+Progress = Callable[[str, int, int, dict], None]
+
+
+def _stage_error(name: str, exc: Exception) -> OptimizationError:
+    return OptimizationError(f"stage {name!r} failed: {exc}")
+
+
+def plausibility(scene: Scene, params, metric_scale: float, camera, render_size: int) -> dict:
+    """JSON-ready plausibility report of a hand (metric object frame) against the object."""
+    import trimesh
+
+    from easyhoi import metrics
+
+    model = scene.hand_model
+    with torch.no_grad():
+        verts_m = model(params).vertices[0].double()
+    hand = trimesh.Trimesh(verts_m.numpy(), model.faces_for(params.side).numpy(), process=False)
+    obj = scene.watertight.copy()
+    obj.apply_scale(metric_scale)
+    out: dict = {}
+    checks = {
+        "penetration_depth_cm": lambda: metrics.penetration_depth(hand, obj),
+        "intersection_volume_cm3": lambda: metrics.intersection_volume(hand, obj, method="solid"),
+        "in_contact": lambda: metrics.in_contact(hand, obj),
+    }
+    for key, fn in checks.items():
+        try:
+            out[key] = fn()
+        except EasyHOIError as exc:  # e.g. a hand mesh that is not closed
+            logger.warning("plausibility metric %s unavailable: %s", key, exc)
+            out[key] = None
+    with torch.no_grad():
+        v_obj = (verts_m / metric_scale).to(scene.dtype)
+        d = scene.sdf(v_obj, 64).min()
+        out["contact_distance_cm"] = float(d) * scene.extent * metric_scale * 100.0
+        h, w = scene.render_size(1.0, render_size)
+        cam = camera.detach().to(scene.dtype).resized(w, h)
+        zh = depth_map(v_obj, model.faces, cam)
+        zo = scene.object_depth(cam)
+        masks = scene.masks_at(h, w)
+        vis = (torch.isfinite(zh) & (zh <= zo)).to(scene.dtype)
+        out["hand_mask_iou"] = hard_iou(vis, masks["hand"])
+        out["object_mask_iou"] = hard_iou(torch.isfinite(zo).to(scene.dtype), masks["amodal"])
+    return out
+
+
+def optimize(
+    inp: HOIInput,
+    config: OptimConfig | None = None,
+    *,
+    hand_model=None,
+    progress: Progress | None = None,
+) -> HOIResult:
+    """Run the three-stage optimizer on one input.
+
+    Parameters
+    ----------
+    inp : HOIInput
+        Photo, masks, object mesh (canonical frame, any scale), hand estimate and its camera.
+    config : OptimConfig or None
+        Optimizer settings (default: the default preset's, ``get_preset().optim``); an
+        :class:`~easyhoi.config.EasyHOIConfig` is accepted and its ``optim`` used.
+    hand_model : HandModel or None
+        The model ``inp.hand_params`` belong to (default: ``load_hand_model(inp.hand_model)``).
+    progress : callable or None
+        ``progress(stage_name, iteration, max_iters, {loss terms})``, called every
+        ``config.history_every`` iterations of every stage.
+
+    Returns
+    -------
+    HOIResult
+        Hand in the metric object frame, camera, metric scale, stage snapshots ("initial" and
+        one per stage that ran), timings (s), seed, config, plausibility.
+
+    Raises
+    ------
+    InvalidInputError
+        Bad input or configuration.
+    OptimizationError
+        A stage diverged (NaN loss) or failed; the message names the stage.
+    """
+    if config is None:
+        config = get_preset().optim
+    if isinstance(config, EasyHOIConfig):
+        config = config.optim
+    if not isinstance(config, OptimConfig):
+        raise InvalidInputError(f"config must be an OptimConfig, got {type(config).__name__}")
+    if not isinstance(inp, HOIInput):
+        raise InvalidInputError(f"inp must be an HOIInput, got {type(inp).__name__}")
+    dtype = config.torch_dtype
+    if hand_model is None:
+        from easyhoi.hand import load_hand_model
+
+        hand_model = load_hand_model(inp.hand_model, dtype=dtype)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(config.seed)
+        scene = Scene.from_input(inp, hand_model, dtype)
+        timings["setup"] = time.perf_counter() - t0
+        stages, camera, params, m = _run_stages(inp, scene, config, progress, timings)
+    t1 = time.perf_counter()
+    report = plausibility(scene, params, m, camera, config.render_size)
+    timings["plausibility"] = time.perf_counter() - t1
+    timings["total"] = time.perf_counter() - t0
+    with torch.no_grad():
+        verts = hand_model(params).vertices[0].double().numpy() / m
+    return HOIResult(
+        hand_params=params,
+        camera=camera,
+        hand_vertices=verts,
+        hand_faces=hand_model.faces_for(params.side).numpy(),
+        object_mesh=inp.object_mesh,
+        metric_scale=m,
+        hand_model=inp.hand_model,
+        stages=tuple(stages),
+        timings=timings,
+        seed=config.seed,
+        config=to_dict(config),
+        plausibility=report,
+        meta=dict(inp.meta),
+    )
+
+
+def _run_stages(inp: HOIInput, scene: Scene, config: OptimConfig, progress, timings: dict):
+    stages: list[StageResult] = []
+    t = time.perf_counter()
+    cam, note = initial_camera(scene, config.camera, inp.amodal_mask, config.render_size)
+    p_cam, m, hand_note = initial_hand(
+        scene, inp, cam, config.render_size, config.contact.peel_layers
+    )
+    params = camera_hand_to_object(p_cam, cam, m, scene.hand_model)
+    stages.append(
+        StageResult(
+            name="initial",
+            hand_params=params,
+            camera=cam,
+            seconds=time.perf_counter() - t,
+            metric_scale=m,
+            stop_reason="initial",
+            extra={"camera": note, "hand": hand_note},
+        )
+    )
+    timings["initial"] = time.perf_counter() - t
+
+    if config.run_camera:
+        try:
+            cam, res = fit_camera(scene, cam, config.camera, config, progress)
+        except InvalidInputError as exc:  # e.g. NaN vertices reaching the renderer
+            raise _stage_error("camera", exc) from exc
+        # the hand placement follows the new camera (same pixels, new focal)
+        p_cam, m, hand_note = initial_hand(
+            scene, inp, cam, config.render_size, config.contact.peel_layers
+        )
+        params = camera_hand_to_object(p_cam, cam, m, scene.hand_model)
+        stages.append(replace(res, hand_params=params, metric_scale=m,
+                              extra={**res.extra, "hand": hand_note}))  # fmt: skip
+        timings["camera"] = res.seconds
+
+    if config.run_contact:
+        try:
+            state = ContactState(scene, p_cam, cam, m)
+            res = fit_contact(scene, state, config.contact, config, progress)
+        except InvalidInputError as exc:  # e.g. NaN vertices reaching the renderer
+            raise _stage_error("contact", exc) from exc
+        params, m = res.hand_params, float(res.metric_scale)
+        stages.append(res)
+        timings["contact"] = res.seconds
+
+    if config.run_refine:
+        theta0 = inp.hand_params.pose  # the estimator's articulation (same side convention)
+        try:
+            params, res = fit_refine(scene, params, m, cam, config.refine, config,
+                                     theta0=theta0.to(scene.dtype), progress=progress)  # fmt: skip
+        except InvalidInputError as exc:  # e.g. NaN vertices reaching the renderer
+            raise _stage_error("refine", exc) from exc
+        stages.append(res)
+        timings["refine"] = res.seconds
+    if not np.isfinite(m) or m <= 0:
+        raise OptimizationError(f"the recovered metric scale is invalid ({m})")
+    return stages, cam, params, m
