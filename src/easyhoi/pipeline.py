@@ -48,13 +48,15 @@ def reconstruct_photo(
     from dataclasses import replace
 
     from easyhoi.io.image import load_image
+
+    t0 = time.perf_counter()
+    image = load_image(image_path)  # bad photos fail first, before any heavy import
+
     from easyhoi.optim.run import optimize
     from easyhoi.perception.chain import perceive
 
     cfg = config or get_preset("fast")
     cfg = replace(cfg, optim=replace(cfg.optim, seed=seed))
-    t0 = time.perf_counter()
-    image = load_image(image_path)
     inp, report = perceive(image.rgb, cfg, progress=say, seed=seed, provided=provided)
     result = optimize(inp, cfg.optim, progress=progress)
     files = []
