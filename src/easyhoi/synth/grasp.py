@@ -59,6 +59,7 @@ from easyhoi.geometry.transforms import axis_angle_to_matrix, matrix_to_axis_ang
 from easyhoi.hand.base import HandModel
 from easyhoi.hand.lbs import forward_kinematics
 from easyhoi.hand.regions import DIGIT_JOINTS, flexion_axes
+from easyhoi.metrics.interaction import penetration_depth
 from easyhoi.structures import HandParams
 
 logger = logging.getLogger(__name__)
@@ -198,7 +199,7 @@ class _ObjectInfo:
     normals: np.ndarray  # (N, 3)
 
 
-def analyse_object(mesh: trimesh.Trimesh, resolution: int = 44, seed: int = 0) -> _ObjectInfo:
+def analyse_object(mesh: trimesh.Trimesh, resolution: int = 40, seed: int = 0) -> _ObjectInfo:
     """SDF grid (reaching 3 cm past the object), principal axes and surface samples."""
     from easyhoi.geometry.sampling import sample_surface
 
@@ -452,7 +453,7 @@ def synthesize_grasp(
     seed: int = 0,
     betas: torch.Tensor | None = None,
     info: _ObjectInfo | None = None,
-    iterations: int = 60,
+    iterations: int = 40,
     contact_threshold: float = 0.005,
     check_stability: bool = False,
     w_pen: float = 3e4,
@@ -479,9 +480,9 @@ def synthesize_grasp(
     contact_threshold : float
         Metres; vertices within it count as contacts.
     check_stability : bool
-        Also run :func:`easyhoi.metrics.simulation_displacement` (35 steps, gravity along -z of
-        the hand's approach, i.e. pulling the object out of the hand's palm side... see module
-        docstring; slow on curved objects).
+        Also run :func:`easyhoi.metrics.simulation_displacement` (35 steps) with gravity along
+        the palm normal (palm facing down: the fingers alone must hold the object). Slow on
+        curved objects (V-HACD decomposition).
     w_pen, w_att, w_reg : float
         Refinement loss weights.
 
@@ -506,7 +507,7 @@ def synthesize_grasp(
     pose_c = _close(poser, info.grid, opened, closed, _closing_digits(grasp_type), Rt, Tt,
                     num_steps=40, contact_tol=0.0015)  # fmt: skip
     pose0 = torch.as_tensor(pose_c.reshape(45))
-    pose, Rt, Tt = _refine(poser, info.grid, pose0, Rt, Tt, _pad_groups(model, grasp_type),
+    pose, Rt, Tt = _refine(poser, info.grid, mesh, pose0, Rt, Tt, _pad_groups(model, grasp_type),
                            iterations, w_pen, w_att, w_reg)  # fmt: skip
     params = poser.params(pose, Rt, Tt)
     with torch.no_grad():
@@ -514,8 +515,7 @@ def synthesize_grasp(
     verts = out.vertices[0].double().numpy()
     faces = out.faces.numpy().astype(np.int64)
     d = exact_signed_distance(mesh, verts)
-    inside = d < 0
-    pen = float(-d[inside].min() * 100.0) if inside.any() else 0.0
+    pen = penetration_depth((verts, faces), mesh)
     close = d <= contact_threshold
     part = model.regions.vertex_part.numpy()
     touching = [n for n, js in DIGIT_JOINTS.items() if close[np.isin(part, js)].any()]
@@ -524,16 +524,22 @@ def synthesize_grasp(
     seconds = time.perf_counter() - start
     stability = None
     if check_stability:
-        from easyhoi.metrics import simulation_displacement
+        from easyhoi.metrics.simulation import simulation_displacement
 
-        sim = simulation_displacement((verts, faces), mesh)
-        stability = float(sim.displacement_cm if hasattr(sim, "displacement_cm") else sim)
+        palm_down = Rt.numpy() @ np.array([0.0, -1.0, 0.0])  # pulls the object out of the palm
+        sim = simulation_displacement((verts, faces), mesh, gravity_dir=palm_down)
+        stability = float(sim.displacement)
     return Grasp(params, verts, faces, grasp_type, pen, int(close.sum()), tuple(touching),
                  stability, seconds)  # fmt: skip
 
 
-def _refine(poser, grid, pose0, R0, T0, groups, iterations, w_pen, w_att, w_reg):
-    """Adam on (rotation residual, translation residual, articulation)."""
+def _refine(poser, grid, mesh, pose0, R0, T0, groups, iterations, w_pen, w_att, w_reg):
+    """Adam on (rotation residual, translation residual, articulation).
+
+    The grid's interpolation error (large near thin parts and sharp edges) is cancelled by a
+    per-vertex correction ``exact - grid`` refreshed every 10 iterations with the exact signed
+    distance of ``mesh``.
+    """
     if iterations <= 0:
         return pose0, R0, T0
     pose = pose0.clone().requires_grad_(True)
@@ -543,10 +549,16 @@ def _refine(poser, grid, pose0, R0, T0, groups, iterations, w_pen, w_att, w_reg)
                             {"params": [drot], "lr": 0.005},
                             {"params": [dt], "lr": 0.001}])  # fmt: skip
     groups = [torch.as_tensor(g) for g in groups if len(g)]
-    for _ in range(iterations):
+    correction = torch.zeros(())
+    for it in range(iterations):
         opt.zero_grad()
         R = axis_angle_to_matrix(drot) @ R0
-        d = _sdf(grid, poser.canonical(pose[None])[0], R, T0 + dt)
+        x = poser.canonical(pose[None])[0] @ R.T + T0 + dt
+        d = query(grid, x)
+        if it % 10 == 0:
+            exact = exact_signed_distance(mesh, x.detach().numpy())
+            correction = torch.as_tensor(exact) - d.detach()
+        d = d + correction
         pen = torch.relu(-d).pow(2).sum()
         att = sum(torch.relu(d[g].amin()).pow(2) for g in groups)
         reg = (pose - pose0).pow(2).sum()
