@@ -74,14 +74,17 @@ class SDFGrid:
         """(3,) spacing between neighbouring nodes along x, y, z."""
         return (self.bounds_max - self.bounds_min) / (self.resolution - 1)
 
-    def node_positions(self) -> torch.Tensor:
-        """(R, R, R, 3) positions of the nodes, matching ``values`` index for index."""
+    def node_positions(self, dtype: torch.dtype | None = None) -> torch.Tensor:
+        """(R, R, R, 3) positions of the nodes, matching ``values`` index for index.
+
+        Computed in float64 from the bounds, then cast to ``dtype`` (default: the values').
+        """
         axes = [
             torch.linspace(float(lo), float(hi), self.resolution, dtype=torch.float64)
             for lo, hi in zip(self.bounds_min, self.bounds_max, strict=True)
         ]
         grid = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1)
-        return grid.to(self.values.dtype)
+        return grid.to(device=self.values.device, dtype=dtype or self.values.dtype)
 
     def to(self, device=None, dtype=None) -> SDFGrid:
         """A copy with every tensor moved to ``device`` and/or cast to ``dtype``."""
