@@ -177,7 +177,8 @@ def metrics_markdown(metrics: dict) -> str:
     rows = ["| metric | value |", "|---|---|"]
     for key, value in metrics.get("plausibility", {}).items():
         text, unit = _label(key)
-        rows.append(f"| {text} | {_fmt(value)}{' ' + unit if unit and value is not None else ''} |")
+        shown = _fmt(value)
+        rows.append(f"| {text} | {shown}{' ' + unit if unit and shown != 'n/a' else ''} |")
     for key in ("preset", "seed", "seconds"):
         if key in metrics:
             value = metrics[key]
