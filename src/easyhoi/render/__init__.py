@@ -1,0 +1,29 @@
+"""CPU rendering: differentiable soft silhouettes, occlusion-aware HOI masks, depth peeling.
+
+See docs/rendering.md for the design, conventions and measured performance.
+"""
+
+from easyhoi.render.composite import HOIMasks, hoi_masks
+from easyhoi.render.raster import Fragments, depth_map, peel, peel_pixels, rasterize
+from easyhoi.render.soft import (
+    cull_margin,
+    set_compile,
+    sigma_from_ndc,
+    soft_log_visibility,
+    soft_silhouette,
+)
+
+__all__ = [
+    "Fragments",
+    "HOIMasks",
+    "cull_margin",
+    "depth_map",
+    "hoi_masks",
+    "peel",
+    "peel_pixels",
+    "rasterize",
+    "set_compile",
+    "sigma_from_ndc",
+    "soft_log_visibility",
+    "soft_silhouette",
+]

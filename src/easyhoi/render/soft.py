@@ -28,6 +28,7 @@ import math
 
 import torch
 
+from easyhoi.errors import InvalidInputError
 from easyhoi.render._common import (
     as_camera,
     as_faces,
@@ -263,8 +264,6 @@ def soft_log_visibility(
     near = check_positive(near, "near")
     cull_eps = check_positive(cull_eps, "cull_eps")
     if cull_eps >= 1:
-        from easyhoi.errors import InvalidInputError
-
         raise InvalidInputError(f"cull_eps must be in (0, 1), got {cull_eps}")
     v, batched = as_verts(verts)
     f = as_faces(faces, v.shape[1])
