@@ -101,10 +101,10 @@ class Camera:
             )
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
-        if float(self.K[0, 0]) <= 0 or float(self.K[1, 1]) <= 0:
+        fx, fy = float(self.K[0, 0].detach()), float(self.K[1, 1].detach())
+        if fx <= 0 or fy <= 0:
             raise InvalidInputError(
-                f"camera focal lengths must be positive, got fx={float(self.K[0, 0]):.4g}, "
-                f"fy={float(self.K[1, 1]):.4g}"
+                f"camera focal lengths must be positive, got fx={fx:.4g}, fy={fy:.4g}"
             )
 
     # -- constructors -------------------------------------------------------------------------
