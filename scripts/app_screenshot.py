@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import socket
 import sys
 import tempfile
@@ -170,8 +171,9 @@ def foreign_urls(urls) -> list[str]:
 def run_flow(driver, url: str, image: str | Path, timeout: float = 120.0) -> dict:
     """Upload ``image``, press Run, wait for the results; returns what the page shows.
 
-    Returns a dict with ``overlay_src``, ``metrics_text``, ``error_text``, ``download_urls``
-    and ``model3d_canvas`` (whether the 3D view drew a canvas).
+    Returns a dict with ``overlay_src``, ``metrics_text``, ``error_text``, ``download_urls``,
+    ``model3d_canvas`` (whether the 3D view drew a canvas) and ``progress_seen`` (the
+    "optimizing: <stage>" progress texts seen while waiting).
     """
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support import expected_conditions as ec
@@ -186,7 +188,11 @@ def run_flow(driver, url: str, image: str | Path, timeout: float = 120.0) -> dic
     wait.until(ec.presence_of_element_located((By.CSS_SELECTOR, "#preview img")))
     driver.find_element(By.CSS_SELECTOR, "#run").click()
 
+    seen = []
+
     def done(d):
+        text = d.find_element(By.TAG_NAME, "body").text
+        seen.extend(m for m in re.findall(r"optimizing: \w+", text) if m not in seen)
         err = d.find_elements(By.CSS_SELECTOR, "#error")
         if err and err[0].is_displayed() and err[0].text.strip():
             return "error"
@@ -194,7 +200,7 @@ def run_flow(driver, url: str, image: str | Path, timeout: float = 120.0) -> dic
         links = d.find_elements(By.CSS_SELECTOR, "#downloads a[href]")
         return "ok" if ok and links else False
 
-    wait.until(done)
+    WebDriverWait(driver, timeout, poll_frequency=0.2).until(done)
     time.sleep(1.5)  # let the 3D view draw before a screenshot
     overlay = driver.find_elements(By.CSS_SELECTOR, "#overlay img[src]")
     error = driver.find_elements(By.CSS_SELECTOR, "#error")
@@ -205,6 +211,7 @@ def run_flow(driver, url: str, image: str | Path, timeout: float = 120.0) -> dic
         "download_urls": [a.get_attribute("href") for a in
                           driver.find_elements(By.CSS_SELECTOR, "#downloads a[href]")],
         "model3d_canvas": bool(driver.find_elements(By.CSS_SELECTOR, "#model3d canvas")),
+        "progress_seen": seen,
     }  # fmt: skip
 
 

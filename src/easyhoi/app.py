@@ -409,7 +409,7 @@ result.
 """
 
 _CSS = """
-#error { color: #b3261e; font-weight: 600; }
+#error, #error * { color: #b3261e !important; }
 """
 
 
@@ -559,7 +559,7 @@ def launch(
             prevent_thread_lock=not block, quiet=quiet, show_error=False,
             max_file_size=int(float(max_upload_mb) * 2**20),
             allowed_paths=[str(app.easyhoi_work_dir)], ssr_mode=False, mcp_server=False,
-            enable_monitoring=False, pwa=False,
+            enable_monitoring=False, pwa=False, css=_CSS,
         )  # fmt: skip
     except OSError as exc:
         raise InvalidInputError(f"cannot serve on {host}:{port}: {exc}") from exc

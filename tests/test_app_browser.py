@@ -1,0 +1,137 @@
+"""The web demo in headless Chromium: upload, Run, overlay, metrics, GLB download, errors.
+
+Uses the driver and the stand-in reconstruction of ``scripts/app_screenshot.py``; the server
+runs on 127.0.0.1 at a free port in a background thread. Slow (a browser start and a page
+load, about 20 s); skipped only when gradio, selenium or the system Chromium is missing.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import io
+import shutil
+import time
+import urllib.request
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from tests.test_app import load_screenshot_script, photo
+
+pytestmark = pytest.mark.slow
+
+standin = load_screenshot_script()
+
+
+def _missing() -> str | None:
+    if importlib.util.find_spec("gradio") is None:
+        return "gradio not installed (pip install 'easyhoi[demo]')"
+    if importlib.util.find_spec("selenium") is None:
+        return "selenium not installed (pip install selenium)"
+    for exe in (standin.CHROMIUM, standin.CHROMEDRIVER):
+        if not Path(exe).is_file() and not shutil.which(Path(exe).name):
+            return f"{exe} not installed (apt-get install chromium chromium-driver)"
+    return None
+
+
+if _missing():
+    pytest.skip(_missing(), allow_module_level=True)
+
+
+def slowed_standin(image_path, out_dir, config, *, progress=None, **kw):
+    """The stand-in, with 0.1 s per progress report so that the page can show them."""
+
+    def slow(*args):
+        time.sleep(0.1)
+        progress(*args)
+
+    return standin.standin_reconstruct(image_path, out_dir, config, progress=slow, **kw)
+
+
+@pytest.fixture(scope="module")
+def server():
+    app, url = standin.start_demo(slowed_standin)
+    yield url
+    app.close()
+
+
+@pytest.fixture(scope="module")
+def driver(tmp_path_factory):
+    d = standin.make_driver(tmp_path_factory.mktemp("chromium-profile"))
+    yield d
+    d.quit()
+
+
+def _get(url: str) -> bytes:
+    return urllib.request.urlopen(url, timeout=30).read()
+
+
+def test_upload_run_shows_overlay_metrics_and_serves_the_glb(server, driver, tmp_path):
+    src = photo(tmp_path / "browser photo.png", size=(320, 240))
+    shown = standin.run_flow(driver, server, src, timeout=90)
+    shot = tmp_path / "app.png"
+    driver.save_screenshot(str(shot))
+    assert shown["error_text"] == ""
+    # progress fed from the reconstruction's callbacks reached the page
+    assert {"optimizing: camera", "optimizing: contact", "optimizing: refine"} & set(
+        shown["progress_seen"]
+    ), shown["progress_seen"]
+    # the overlay shown is the reconstruction's overlay: the photo size, hand drawn over it
+    overlay = Image.open(io.BytesIO(_get(shown["overlay_src"]))).convert("RGB")
+    assert overlay.size == (320, 240)
+    diff = np.abs(np.asarray(overlay, int) - np.asarray(Image.open(src).convert("RGB"), int))
+    assert 0.02 < (diff.sum(-1) > 30).mean() < 0.9
+    # metrics table as text
+    text = shown["metrics_text"]
+    assert "penetration depth" in text and "0.21 cm" in text and "in contact" in text
+    assert "hand mask IoU" in text and "seed" in text
+    # downloads: a zip of the result folder and a GLB served over HTTP
+    names = [u.rsplit("/", 1)[-1] for u in shown["download_urls"]]
+    assert names == ["browser_photo-easyhoi.zip", "scene.glb", "report.html"]
+    glb = _get(shown["download_urls"][1])
+    assert glb[:4] == b"glTF" and int.from_bytes(glb[8:12], "little") == len(glb)
+    with zipfile.ZipFile(io.BytesIO(_get(shown["download_urls"][0]))) as zf:
+        assert zf.read("browser_photo/scene.glb") == glb
+        assert Image.open(io.BytesIO(zf.read("browser_photo/overlay.png"))).size == (320, 240)
+    # the 3D view drew its canvas; the screenshot is the full page, not a blank window
+    assert shown["model3d_canvas"]
+    img = np.asarray(Image.open(shot).convert("RGB"))
+    assert img.shape[0] > 1000 and img.shape[1] > 1000 and img.std() > 20
+
+
+def test_corrupt_upload_shows_a_readable_error(server, driver, tmp_path):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    bad = tmp_path / "broken.png"
+    full = photo(tmp_path / "full.png", size=(400, 300)).read_bytes()
+    bad.write_bytes(full[: len(full) // 2])
+    driver.get(server)
+    wait = WebDriverWait(driver, 60)
+    upload = wait.until(
+        ec.presence_of_element_located((By.CSS_SELECTOR, "#photo input[type=file]"))
+    )
+    upload.send_keys(str(bad))
+    error = wait.until(ec.visibility_of_element_located((By.CSS_SELECTOR, "#error")))
+    wait.until(lambda d: error.text.strip())
+    assert error.text.startswith("The photo cannot be used:")
+    assert "'broken.png'" in error.text and "corrupt or truncated" in error.text
+    driver.find_element(By.CSS_SELECTOR, "#run").click()
+    wait.until(lambda d: "cannot be used" in d.find_element(By.CSS_SELECTOR, "#error").text)
+    driver.save_screenshot(str(tmp_path / "error.png"))
+    body = driver.find_element(By.TAG_NAME, "body").text
+    assert "Traceback" not in body and "/tmp/" not in body
+    assert not driver.find_elements(By.CSS_SELECTOR, "#overlay img[src]")
+
+
+def test_the_page_contacts_no_other_host(server, driver):
+    # every request of every page this browser loaded (the other tests' flows too)
+    driver.get(server)
+    time.sleep(2)
+    urls = standin.requested_urls(driver)
+    assert any(u.startswith(server) for u in urls)
+    assert standin.foreign_urls(urls) == []
