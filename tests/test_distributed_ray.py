@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
 import pytest
@@ -18,9 +17,10 @@ ray = pytest.importorskip("ray", reason="ray is not installed (pip install 'easy
 
 @pytest.fixture(scope="module")
 def cluster():
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
-             _node_ip_address="127.0.0.1")  # fmt: skip
+    from easyhoi.distributed import _ray_init
+
+    assert _ray_init(ray, 2, None) is True  # the engine's own local-cluster start
+    assert _ray_init(ray, 2, None) is False  # an initialised session is reused
     yield ray
     ray.shutdown()
 
@@ -64,6 +64,7 @@ def test_ray_engine_matches_local_engine(cluster, photos, tmp_path):
     # the session the test started is reused and left running
     assert cluster.is_initialized()
     assert cluster.cluster_resources().get("CPU") == 2
+    assert [n["NodeManagerAddress"] for n in cluster.nodes()] == ["127.0.0.1"]
 
 
 def test_ray_resume_skips_finished(cluster, photos, tmp_path):

@@ -20,8 +20,9 @@ Engines (:func:`execute` yields results in completion order):
 ``"ray"``
     Ray tasks (the ``[distributed]`` extra). ``ray.init(address=...)`` joins an existing cluster;
     without an address a local cluster bound to 127.0.0.1 with ``num_cpus=workers`` and no
-    dashboard is started (and shut down afterwards). Results are collected with ``ray.wait`` as
-    they finish. A Ray session that is already initialised is reused and left running.
+    dashboard is started (and shut down afterwards); all its processes listen on the loopback
+    interface only. Results are collected with ``ray.wait`` as they finish. A Ray session that
+    is already initialised is reused and left running.
 ``"inline"``
     Sequentially in the calling process (debugging; no isolation, no thread change).
 
@@ -31,6 +32,8 @@ name), so results do not depend on the engine, the number of workers or the comp
 
 from __future__ import annotations
 
+import contextlib
+import importlib
 import logging
 import multiprocessing
 import os
@@ -354,15 +357,50 @@ def _import_ray():
     return ray
 
 
+@contextlib.contextmanager
+def _loopback_only(ray):
+    """Make a local Ray node advertise and bind 127.0.0.1 instead of the machine's address.
+
+    Ray replaces ``_node_ip_address="127.0.0.1"`` by a "remotely reachable" address unless its
+    multi-node support is off (``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0``, read into
+    ``ray_constants.ENABLE_RAY_CLUSTER`` at import); both are switched off while the node starts
+    (the processes it starts inherit the variable) and restored afterwards.
+    """
+    var = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+    old_env = os.environ.get(var)
+    os.environ[var] = "0"
+    try:
+        constants = importlib.import_module("ray._private.ray_constants")
+    except ImportError:  # pragma: no cover - layout of another Ray version
+        constants = None
+    old_flag = getattr(constants, "ENABLE_RAY_CLUSTER", None)
+    if old_flag is not None:
+        constants.ENABLE_RAY_CLUSTER = False
+    try:
+        yield
+    finally:
+        if old_flag is not None:
+            constants.ENABLE_RAY_CLUSTER = old_flag
+        if old_env is None:
+            os.environ.pop(var, None)
+        else:
+            os.environ[var] = old_env
+
+
 def _ray_init(ray, workers: int, address: str | None) -> bool:
-    """Connect to (or start) Ray; return True when this call started the session."""
+    """Connect to (or start) Ray; return True when this call started the session.
+
+    Without ``address`` a local node with ``num_cpus=workers`` and no dashboard is started,
+    listening on 127.0.0.1 only.
+    """
     if ray.is_initialized():
         return False
     # Never send usage statistics (the only network traffic of a local cluster besides loopback).
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     if address:
         ray.init(address=address, log_to_driver=False)
-    else:
+        return True
+    with _loopback_only(ray):
         ray.init(
             num_cpus=workers,
             include_dashboard=False,
