@@ -37,6 +37,8 @@ from easyhoi.geometry.sdf import pseudonormal_signed_distance
 
 METHODS = ("auto", "meshfix", "fusion")
 SURFACES = ("carve", "poisson")
+#: Views that must see past a grid node before carving removes it.
+_CARVE_VOTES = 2
 
 
 @dataclass(frozen=True)
@@ -176,7 +178,8 @@ def _carve(views, mesh_vertices, mesh_faces, center, radius, bounds, resolution,
     rel = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3) - center
     # Carving gives the side away from the surface: a node is outside when some view sees past
     # it (its pixel misses the object or the first hit lies behind the node).
-    outside = np.zeros(len(rel), dtype=bool)
+    # Two votes are needed, so that a view looking through a small hole does not tunnel.
+    votes = np.zeros(len(rel), dtype=np.int8)
     pix = 2.0 * radius / image_size
     todo = np.arange(len(rel))
     for view in views:
@@ -185,8 +188,9 @@ def _carve(views, mesh_vertices, mesh_faces, center, radius, bounds, resolution,
         ix = np.clip(((proj[:, 0] + radius) / pix).astype(np.int64), 0, image_size - 1)
         iy = np.clip(((proj[:, 1] + radius) / pix).astype(np.int64), 0, image_size - 1)
         seen_past = view.depth[ix, iy] > 2.0 * radius - proj[:, 2]
-        outside[todo[seen_past]] = True
-        todo = todo[~seen_past]
+        votes[todo[seen_past]] += 1
+        todo = todo[votes[todo] < _CARVE_VOTES]
+    outside = votes >= _CARVE_VOTES
     if outside.all():
         raise BackendError("depth carving removed everything: the object is too thin for the grid")
     # Near the surface the views saw, the value is the exact distance to it, signed by its
