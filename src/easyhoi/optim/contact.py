@@ -72,7 +72,14 @@ from easyhoi.structures import Camera, HandParams
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ContactState", "fit_contact", "initial_hand", "register_contacts"]
+__all__ = [
+    "ContactState",
+    "contact_points",
+    "fit_contact",
+    "initial_hand",
+    "register_contacts",
+    "scan_scale",
+]
 
 #: Smallest number of contact points on each side for a registration to run.
 MIN_CONTACT_POINTS = 3
@@ -285,14 +292,14 @@ def _hits(frags, keep, farthest):
     return frags.points.detach()[rows, sel[ok]], ok
 
 
-def register_contacts(
+def contact_points(
     scene: Scene,
     hand_verts: torch.Tensor,
     camera: Camera,
     masks: dict,
     cfg: ContactStageConfig,
-) -> tuple[np.ndarray | None, np.ndarray | None, dict]:
-    """Contact registration at one resolution.
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Hand and object contact points from the mutual-occlusion regions (module docstring).
 
     Parameters
     ----------
@@ -304,9 +311,9 @@ def register_contacts(
 
     Returns
     -------
-    D : (3,) ICP translation (object frame) or None when too few contact points.
-    anchor : (3,) centroid of the hand contact points or None.
-    info : dict with point counts and the ICP RMSE history.
+    hand_points : (N, 3) float64, object frame.
+    object_points : (N, 3) float64, object frame (one per ray, same rays as the hand points).
+    info : dict with pixel and point counts.
     """
     v = hand_verts.detach()
     faces = scene.hand_model.faces
@@ -334,6 +341,33 @@ def register_contacts(
     src = torch.cat(hand_pts).double().numpy() if hand_pts else np.zeros((0, 3))
     tgt = torch.cat(obj_pts).double().numpy() if obj_pts else np.zeros((0, 3))
     info.update({"hand_points": len(src), "object_points": len(tgt)})
+    return src, tgt, info
+
+
+def register_contacts(
+    scene: Scene,
+    hand_verts: torch.Tensor,
+    camera: Camera,
+    masks: dict,
+    cfg: ContactStageConfig,
+) -> tuple[np.ndarray | None, np.ndarray | None, dict]:
+    """Contact registration at one resolution: :func:`contact_points`, then translation ICP.
+
+    Parameters
+    ----------
+    scene : Scene
+    hand_verts : (V, 3) hand vertices in the object frame (object units).
+    camera : Camera at the render resolution.
+    masks : dict from :meth:`Scene.masks_at` at that resolution.
+    cfg : ContactStageConfig
+
+    Returns
+    -------
+    D : (3,) ICP translation (object frame) or None when too few contact points.
+    anchor : (3,) centroid of the hand contact points or None.
+    info : dict with point counts and the ICP RMSE history.
+    """
+    src, tgt, info = contact_points(scene, hand_verts, camera, masks, cfg)
     if len(src) < MIN_CONTACT_POINTS or len(tgt) < MIN_CONTACT_POINTS:
         info["skipped"] = "too few contact points"
         return None, None, info
@@ -346,6 +380,7 @@ def register_contacts(
         trim_fraction=cfg.icp_trim_fraction,
     )
     info.update({
+        "centroid_shift": [float(x) for x in tgt.mean(axis=0) - src.mean(axis=0)],
         "icp_iterations": int(res.iterations),
         "rmse_first": float(res.rmse[0]),
         "rmse_last": float(res.rmse[-1]),

@@ -1,0 +1,133 @@
+"""Stage 2 (contact alignment) on synthetic scenes with the ground-truth object camera."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from easyhoi.config import get_preset
+from easyhoi.hand import load_hand_model
+from easyhoi.optim.contact import (
+    ContactState,
+    contact_points,
+    fit_contact,
+    initial_hand,
+    register_contacts,
+)
+from easyhoi.optim.scene import Scene
+from tests.optim_scenes import make_scene
+
+SIZE = 96
+NOISE = dict(rot_noise=0.05, trans_noise=0.02, depth_noise=0.05, pose_noise=0.03)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_thread():
+    """One intra-op thread: these small problems run several times slower oversubscribed."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return load_hand_model("open")
+
+
+def _setup(kind, hand, **noise):
+    sc = make_scene(kind, size=SIZE, **noise)
+    scene = Scene.from_input(sc.inp, hand, torch.float32)
+    cfg = replace(get_preset("fast").optim, render_size=SIZE)
+    cam = sc.gt_camera.to(torch.float32)
+    return sc, scene, cfg, cam
+
+
+def _gt_verts(sc, hand):
+    return hand(sc.gt_hand.to(dtype=torch.float32)).vertices[0] / sc.gt_metric_scale
+
+
+def test_initial_hand_reproduces_the_estimate_in_the_object_camera(hand):
+    """Without estimator noise the placement is exact up to the (unknown) metric scale."""
+    sc, scene, cfg, cam = _setup("cylinder", hand, rot_noise=0, trans_noise=0, depth_noise=0,
+                                 pose_noise=0)  # fmt: skip
+    p, m, note = initial_hand(scene, sc.inp, cam, SIZE)
+    st = ContactState(scene, p, cam, sc.gt_metric_scale)
+    err = float((st.verts_obj().detach() - _gt_verts(sc, hand)).norm(dim=-1).max())
+    assert err < 1e-3  # object units (2 units = 10 cm): < 0.05 mm
+    assert note["overlap_pixels"] > 0
+    assert abs(m / sc.gt_metric_scale - 1.0) < 0.15  # depth from the photo's occlusions
+
+
+@pytest.mark.parametrize("kind", ["cylinder", "box"])
+def test_contact_stage_brings_hand_into_contact(kind, hand):
+    sc, scene, cfg, cam = _setup(kind, hand, **NOISE)
+    p, m, _ = initial_hand(scene, sc.inp, cam, SIZE)
+    st = ContactState(scene, p, cam, 0.7 * m)  # a start at the wrong depth (off the object)
+    gt = _gt_verts(sc, hand)
+    v0 = st.verts_obj().detach()
+    d0 = float(scene.sdf(v0, 48).min()) * scene.extent * sc.gt_metric_scale  # metres
+    err0 = float((v0 - gt).norm(dim=-1).mean()) * sc.gt_metric_scale
+    res = fit_contact(scene, st, cfg.contact, cfg)
+    v = hand(res.hand_params).vertices[0] / res.metric_scale
+    np.testing.assert_allclose(v.detach().numpy(), st.verts_obj().detach().numpy(), atol=1e-4)
+    d = float(scene.sdf(v.detach(), 48).min()) * scene.extent * sc.gt_metric_scale
+    err = float((v.detach() - gt).norm(dim=-1).mean()) * sc.gt_metric_scale
+    first, last = res.losses[0], res.losses[-1]
+    assert abs(d0) > 0.01  # the start is 1 cm or more away from touching
+    assert abs(d) < 0.004, (d0, d)  # touching within 4 mm
+    assert err < 0.6 * err0 and err < 0.03, (err0, err)
+    assert res.extra["final_mask_iou"] > 0.85
+    assert last["iou"] < first["iou"]
+    assert len(res.extra["registrations"]) == 2
+    assert abs(res.metric_scale / sc.gt_metric_scale - 1.0) < 0.15
+
+
+def test_registration_icp_is_iterative(hand):
+    """The ICP is a real iteration: on partial overlaps it beats one centroid shift."""
+    from scipy.spatial import cKDTree
+
+    sc, scene, cfg, cam = _setup("cylinder", hand, **NOISE)
+    p, m, _ = initial_hand(scene, sc.inp, cam, SIZE)
+    st = ContactState(scene, p, cam, m * 0.8)  # push the hand off the object along the rays
+    masks = scene.masks_at(SIZE, SIZE)
+    args = (scene, st.verts_obj().detach(), cam.resized(SIZE, SIZE), masks, cfg.contact)
+    src, tgt, _ = contact_points(*args)
+    D, anchor, info = register_contacts(*args)
+    assert D is not None and len(src) >= 10 and len(src) == len(tgt)
+    np.testing.assert_allclose(anchor, src.mean(axis=0))
+    assert info["icp_iterations"] > 1
+    assert info["rmse_last"] < info["rmse_first"]
+    tree = cKDTree(tgt)
+    rmse = lambda t: float(np.sqrt(np.mean(tree.query(src + t)[0] ** 2)))  # noqa: E731
+    shift = tgt.mean(axis=0) - src.mean(axis=0)  # the reference's single update
+    np.testing.assert_allclose(shift, info["centroid_shift"])
+    assert rmse(D) == pytest.approx(info["rmse_last"], rel=1e-6)
+    assert rmse(D) < 0.95 * rmse(shift)
+
+
+def test_depth_registration_keeps_the_projection(hand):
+    """A registration move along the camera ray changes the metric scale, not the image."""
+    sc, scene, cfg, cam = _setup("box", hand, **NOISE)
+    p, m, _ = initial_hand(scene, sc.inp, cam, SIZE)
+    st = ContactState(scene, p, cam, m)
+    v0 = st.verts_obj().detach()
+    uv0, _ = cam.project(v0)
+    anchor = v0.mean(0).double().numpy()
+    ray = anchor - cam.center.double().numpy()
+    D = 0.2 * ray / np.linalg.norm(ray)
+    out = st.apply_translation(D, anchor, use_scale=True)
+    v1 = st.verts_obj().detach()
+    uv1, _ = cam.project(v1)
+    assert float((uv1 - uv0).norm(dim=-1).max()) < 1e-2
+    assert out["scale_factor"] != pytest.approx(1.0)
+    moved = v1.mean(0).double().numpy() - anchor  # the map is affine: the centroid follows
+    np.testing.assert_allclose(moved, D, atol=1e-4)
+    # without scale the same move is a pure translation of every vertex
+    st2 = ContactState(scene, p, cam, m)
+    st2.apply_translation(D, anchor, use_scale=False)
+    np.testing.assert_allclose((st2.verts_obj().detach() - v0).double().numpy(),
+                               np.broadcast_to(D, v0.shape), atol=1e-4)  # fmt: skip
