@@ -227,12 +227,15 @@ def test_page_serves_on_localhost_and_runs_through_the_api(tmp_path):
     from easyhoi.app import launch
 
     port = standin.free_port()
+    example = photo(tmp_path / "example-photo.png")
     app = launch("127.0.0.1", port, reconstruct_fn=standin.standin_reconstruct, block=False,
-                 quiet=True, examples=[])  # fmt: skip
+                 quiet=True, examples=[example])  # fmt: skip
     try:
         assert app.server_name == "127.0.0.1" and app.share is False
         html = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30).read().decode()
         assert "EasyHOI demo" in html
+        config = urllib.request.urlopen(f"http://127.0.0.1:{port}/config", timeout=30).read()
+        assert b"Example photos" in config and b"example-photo.png" in config
         client = Client(f"http://127.0.0.1:{port}/", verbose=False, download_files=str(tmp_path))
         src = photo(tmp_path / "api.png")
         overlay, glb, metrics, downloads, error = client.predict(
