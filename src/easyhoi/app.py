@@ -404,8 +404,8 @@ def synthetic_examples(folder: str | Path, seeds: Sequence[int] = (0, 1)) -> lis
 _INTRO = """\
 # EasyHOI: hand + held object from one photo
 Upload a photo of a hand holding an object and press **Run**. The reconstruction runs on this
-machine's CPU (about a minute with the *fast* preset). Same photo, preset and seed give the same
-result.
+machine's CPU: expect minutes, not seconds (about 5 min with the *fast* preset on 2 cores).
+Same photo, preset and seed give the same result.
 """
 
 _CSS = """
@@ -454,6 +454,11 @@ def build_app(
     ------
     MissingDependencyError
         gradio is not installed (``pip install 'easyhoi[demo]'``).
+
+    Notes
+    -----
+    Sets ``GRADIO_ANALYTICS_ENABLED=False`` and (unless set) ``HF_HUB_OFFLINE=1`` and
+    ``HF_HUB_DISABLE_TELEMETRY=1`` in this process: the demo contacts no other machine.
     """
     gr = _require_gradio()
     from easyhoi.config import PRESETS
