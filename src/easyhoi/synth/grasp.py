@@ -3,41 +3,46 @@
 Three steps (all seeded, all in metres, world = the object's frame):
 
 1. **Approach.** A grasp type fixes a hand-frame anchor and two hand-frame axes that are mapped
-   onto world directions (:func:`frame_rotation`):
+   onto world directions (:func:`~easyhoi.synth.synergy.frame_rotation`). The object's axes are
+   its principal axes; its *grip axis* is the one most surface normals are perpendicular to (a
+   can's or mug's axis, a box's longest side).
 
-   * ``"power"`` (power wrap): the palm-centre contact point faces the object at a sampled
-     surface point ``s`` (palm normal along the inward surface normal), the hand's lateral axis
-     (thumb side) along the object's long axis, so that the fingers wrap around the thinner
-     cross-section; the palm is placed ``gap`` (4 mm) off the surface.
-   * ``"precision"`` (pinch / tripod): the midpoint of the thumb and index fingertips sits ``depth``
-     inside the object's outline near one of its ends ``e`` (a principal direction), the pinch
-     axis (thumb -> index) along the object's thinnest direction across that end, the hand
-     coming from outside along ``e``. Ring and pinky stay curled.
-   * ``"lateral"`` (key pinch): the fingers are curled; the radial side of the index finger's
-     middle phalanx touches a large face of the object near an end; the thumb closes on the
-     other side.
+   * ``"power"`` (oblique power wrap): the palm-centre contact zone faces a sampled surface
+     point ``s`` (sides of the grip axis preferred, near the middle), palm normal along the
+     inward surface normal, 4 mm off the surface; the grip axis runs 17-40 degrees off the
+     hand's lateral axis (hypothenar towards the index base) so the fingers wrap around the
+     thinner cross-section and the thumb crosses over from the other side.
+   * ``"precision"`` (pinch / tripod): the point where the thumb pad meets the index and middle
+     pads in the closed pinch lies 12 mm inside one end ``e`` of the object (a principal
+     direction), the pinch axis along the thinnest direction across that end, the hand coming
+     from outside along ``e``; ring and pinky stay curled.
+   * ``"lateral"`` (key pinch): fingers curled; the radial side of the index middle phalanx
+     lies 3 mm off a large face near an end; the thumb closes on the other side.
 
-   The hand is then backed off along the approach direction until no vertex is deeper than
-   ``backoff_tol`` inside the object (batched line search on the SDF grid).
-2. **Closing** (iterative, per finger, batched): every closing digit flexes about
-   :func:`~easyhoi.hand.regions.flexion_axes` with coupled joint ratios over ``num_steps``
-   increments, evaluated in one batched forward pass; a segment that reaches the surface
-   (signed distance < ``contact_tol``) freezes its joint and the joints proximal to it, and the
-   distal joints keep closing (up to three phases), as in GraspIt's auto-grasp.
-3. **Refinement** (gradient-based, Adam): global rotation and translation residuals and the 45
-   articulation parameters minimise
+   The hand (open posture) is then backed off along the approach direction until no vertex is
+   deeper than 0.5 mm inside (batched line search on the SDF grid).
+2. **Closing** (iterative, per finger, batched): every closing digit moves along its grasp
+   synergy (:func:`~easyhoi.synth.synergy.synergy`, open -> closed posture) in 40 increments
+   evaluated in one batched forward pass; when a segment comes within 1.5 mm of the surface, its
+   joint and the joints proximal to it freeze and the distal joints keep closing (up to three
+   phases), as in GraspIt's auto-grasp.
+3. **Refinement** (gradient-based, Adam, 40 iterations): residual rotation and translation and
+   the 45 articulation parameters minimise
 
-   ``w_pen * sum_v relu(-d(v))^2 + w_att * sum_g softmin_{v in pad_g}(relu(d(v)))^2
-   + w_reg * |theta - theta_close|^2``
+   ``w_pen * sum_v relu(-d(v))^2 + w_att * sum_g relu(min_{v in pad_g} d(v))^2
+   + w_reg * |theta - theta_closed|^2``
 
-   with ``d`` the trilinear lookup in a :func:`~easyhoi.geometry.sdf.build_sdf_grid` grid of the
-   object and ``pad_g`` the contact-zone vertices of each closing digit (and the palm for power
-   grasps).
+   with ``d`` the trilinear lookup in a 40^3 :func:`~easyhoi.geometry.sdf.build_sdf_grid` grid
+   of the object plus a per-vertex correction ``exact - grid`` refreshed every 10 iterations
+   with the exact signed distance (the grid alone misses thin parts and sharp edges), and
+   ``pad_g`` the contact-zone vertices of each closing digit (the palm too for power grasps,
+   the index middle phalanx for lateral ones).
 
-The result reports the exact penetration depth (:func:`easyhoi.metrics.penetration_depth`), the
-number of hand vertices within ``contact_threshold`` of the surface, which digits touch, and
-optionally the simulation displacement (:func:`easyhoi.metrics.simulation_displacement`, slow on
-curved objects because of the V-HACD decomposition).
+The result reports the penetration depth (:func:`easyhoi.metrics.penetration_depth`), the
+number of hand vertices within ``contact_threshold`` of the surface (exact distances), which
+digits touch, and optionally the simulation displacement
+(:func:`easyhoi.metrics.simulation_displacement`, palm facing down; slow on curved objects
+because of the V-HACD decomposition).
 
 Timing: these are small tensors; with several processes sharing few cores, PyTorch's intra-op
 threads can slow them down a hundredfold, so callers may want ``torch.set_num_threads(1)``.
@@ -55,19 +60,17 @@ import trimesh
 
 from easyhoi.errors import InvalidInputError
 from easyhoi.geometry.sdf import SDFGrid, build_sdf_grid, exact_signed_distance, query
-from easyhoi.geometry.transforms import axis_angle_to_matrix, matrix_to_axis_angle
+from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hand.base import HandModel
-from easyhoi.hand.lbs import forward_kinematics
-from easyhoi.hand.regions import DIGIT_JOINTS, flexion_axes
+from easyhoi.hand.regions import DIGIT_JOINTS
 from easyhoi.metrics.interaction import penetration_depth
 from easyhoi.structures import HandParams
+from easyhoi.synth.synergy import HandPoser, axis_rotation, frame_rotation, pad_ids, synergy
 
 logger = logging.getLogger(__name__)
 
 GRASP_TYPES = ("power", "precision", "lateral")
 _DIGITS = tuple(DIGIT_JOINTS)  # thumb, index, middle, ring, pinky
-#: Flexion ratios of (base, middle, distal) joints while closing.
-_RATIO = {"thumb": (0.6, 1.0, 1.0), "finger": (1.0, 1.1, 0.8)}
 
 
 @dataclass(frozen=True)
@@ -108,84 +111,6 @@ class Grasp:
 
 
 # ----------------------------------------------------------------------------------------------
-# Fast batched posing (same maths as HandModel.forward, without keypoints and mirroring)
-# ----------------------------------------------------------------------------------------------
-
-
-class _Poser:
-    """Poses one shaped right hand for many articulations at once.
-
-    ``world = R @ v_canonical(theta) + T`` with ``v_canonical`` the hand at zero global
-    orientation and zero translation.
-    """
-
-    def __init__(self, model: HandModel, betas: torch.Tensor):
-        with torch.no_grad():
-            v, j = model.shaped(betas.reshape(1, -1).double())
-        self.betas = betas.reshape(-1).double()
-        self.v_rest, self.j_rest = v, j  # (1, V, 3), (1, 16, 3)
-        self.weights = model.skin_weights.double()
-        self.parents = model.parents
-        self.model = model
-
-    def canonical(self, pose: torch.Tensor) -> torch.Tensor:
-        """(B, 45) articulation -> (B, V, 3) canonical vertices."""
-        B = pose.shape[0]
-        full = torch.cat([torch.zeros(B, 3, dtype=pose.dtype), pose], dim=1).reshape(B, 16, 3)
-        rot = axis_angle_to_matrix(full)
-        v_rest = self.v_rest.expand(B, -1, -1)
-        offsets = self.model.pose_offsets(rot)
-        if offsets is not None:
-            v_rest = v_rest + offsets
-        _, transforms = forward_kinematics(rot, self.j_rest.expand(B, -1, -1), self.parents)
-        T = (self.weights @ transforms[:, :, :3, :].reshape(B, 16, 12)).reshape(B, -1, 3, 4)
-        return (T[..., :3] @ v_rest[..., None])[..., 0] + T[..., 3]
-
-    def subset(self, ids: np.ndarray):
-        """A function (B, 45) -> (B, len(ids), 3) posing only the vertices ``ids``."""
-        ids = torch.as_tensor(ids)
-        weights, v_rest = self.weights[ids], self.v_rest[:, ids]
-
-        def pose_fn(pose: torch.Tensor) -> torch.Tensor:
-            B = pose.shape[0]
-            full = torch.cat([torch.zeros(B, 3, dtype=pose.dtype), pose], 1).reshape(B, 16, 3)
-            rot = axis_angle_to_matrix(full)
-            _, tf = forward_kinematics(rot, self.j_rest.expand(B, -1, -1), self.parents)
-            T = (weights @ tf[:, :, :3, :].reshape(B, 16, 12)).reshape(B, -1, 3, 4)
-            return (T[..., :3] @ v_rest.expand(B, -1, -1)[..., None])[..., 0] + T[..., 3]
-
-        return pose_fn
-
-    def params(self, pose: torch.Tensor, R: torch.Tensor, T: torch.Tensor) -> HandParams:
-        """HandParams whose model output equals ``R @ canonical(pose) + T``."""
-        j0 = self.j_rest[0, 0]
-        go = matrix_to_axis_angle(R[None])
-        transl = T + R @ j0 - j0
-        return HandParams(go, transl[None], pose.reshape(1, 45), self.betas[None])
-
-
-def frame_rotation(a1_hand, a2_hand, a1_world, a2_world) -> np.ndarray:
-    """(3, 3) rotation mapping hand axis ``a1`` exactly onto world ``a1`` and ``a2`` as closely
-    as possible onto world ``a2`` (both made orthogonal to ``a1``)."""
-
-    def frame(a, b):
-        a = np.asarray(a, float) / np.linalg.norm(a)
-        b = np.asarray(b, float) - (np.dot(b, a)) * a
-        nb = np.linalg.norm(b)
-        if nb < 1e-9:
-            raise InvalidInputError("frame_rotation: the two axes are parallel")
-        b = b / nb
-        return np.stack([a, b, np.cross(a, b)], axis=1)
-
-    return frame(a1_world, a2_world) @ frame(a1_hand, a2_hand).T
-
-
-def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
-    aa = torch.as_tensor(np.asarray(axis, float) * angle / np.linalg.norm(axis))
-    return axis_angle_to_matrix(aa).numpy()
-
-
-# ----------------------------------------------------------------------------------------------
 # Object analysis
 # ----------------------------------------------------------------------------------------------
 
@@ -217,103 +142,6 @@ def analyse_object(mesh: trimesh.Trimesh, resolution: int = 40, seed: int = 0) -
     return _ObjectInfo(grid, centre, axes[order], pts, nrm)
 
 
-# ----------------------------------------------------------------------------------------------
-# Grasp synergies: an open and a closed posture per grasp type, closing is the path between them
-# ----------------------------------------------------------------------------------------------
-
-_CURLED = (0.9, 1.2, 0.7)
-
-
-def _digit_pose(axes: np.ndarray, values: dict) -> np.ndarray:
-    """(15, 3) articulation with each listed digit flexed by its (base, middle, distal) angles."""
-    p = np.zeros((15, 3))
-    for d, v in values.items():
-        for j, a in zip(DIGIT_JOINTS[d], v, strict=True):
-            p[j - 1] = axes[j - 1] * a
-    return p
-
-
-def _pad_ids(model: HandModel, joint: int) -> np.ndarray:
-    reg = model.regions
-    cv, part = reg.contact_vertices.numpy(), reg.vertex_part.numpy()
-    return cv[part[cv] == joint]
-
-
-def _fit_thumb(poser, base: np.ndarray, target_ids, free: tuple[str, ...], iters: int = 150):
-    """Thumb articulation (and a common flexion scale of the ``free`` digits) bringing the thumb's
-    distal pad onto the centroid of ``target_ids`` (gradient descent on 9 + 1 parameters)."""
-    pad = _pad_ids(poser.model, 15)
-    ids = np.concatenate([pad, target_ids])
-    sub = poser.subset(ids)
-    n_pad = len(pad)
-    base_t = torch.as_tensor(base)
-    free_rows = [j - 1 for d in free for j in DIGIT_JOINTS[d]]
-    scale_mask = torch.zeros(15, 1, dtype=torch.float64)
-    scale_mask[free_rows] = 1.0
-    th = torch.zeros(9, dtype=torch.float64, requires_grad=True)
-    log_s = torch.zeros(1, dtype=torch.float64, requires_grad=bool(free))
-    opt = torch.optim.Adam([th, log_s], lr=0.05)
-    for _ in range(iters):
-        opt.zero_grad()
-        p = base_t * (1 + scale_mask * (torch.exp(log_s) - 1))
-        p = torch.cat([p[:12], th.reshape(3, 3)])
-        v = sub(p.reshape(1, 45))[0]
-        gap = v[:n_pad].mean(0) - v[n_pad:].mean(0)
-        loss = 1e4 * gap.pow(2).sum() + 2e-3 * th.pow(2).sum()
-        loss.backward()
-        opt.step()
-    with torch.no_grad():
-        p = base_t * (1 + scale_mask * (torch.exp(log_s) - 1))
-        p[12:] = th.reshape(3, 3)
-    return p.numpy()
-
-
-_SYNERGIES: dict = {}
-
-
-def synergy(model: HandModel, grasp_type: str) -> tuple[np.ndarray, np.ndarray]:
-    """Open and closed (15, 3) articulations of a grasp type (cached per model).
-
-    * power: flat hand -> fingers flexed (1.6, 1.76, 1.28) rad, thumb wrapped onto the index
-      finger's middle phalanx of a fist (fitted).
-    * precision: index and middle nearly straight, ring and pinky curled -> thumb pad meeting
-      the index and middle fingertip pads (thumb and finger flexion fitted).
-    * lateral: fingers curled, thumb extended -> thumb pad on the radial side of the index
-      finger's middle phalanx (fitted).
-    """
-    key = (id(model), grasp_type)
-    if key in _SYNERGIES:
-        return _SYNERGIES[key]
-    axes = flexion_axes(model)
-    poser = _Poser(model, torch.zeros(10, dtype=torch.float64))
-    part = model.regions.vertex_part.numpy()
-    fingers = ("index", "middle", "ring", "pinky")
-    if grasp_type == "power":
-        opened = np.zeros((15, 3))
-        closed = _digit_pose(axes, {d: (1.6, 1.76, 1.28) for d in fingers})
-        fist = _digit_pose(axes, {d: (1.0, 1.2, 0.8) for d in fingers})
-        thumb = _fit_thumb(poser, fist, np.nonzero(part == 2)[0], ())
-        closed[12:] = thumb[12:]
-    elif grasp_type == "precision":
-        curled = {"ring": _CURLED, "pinky": _CURLED}
-        opened = _digit_pose(axes, {"index": (0.2, 0.25, 0.1), "middle": (0.2, 0.25, 0.1),
-                                    **curled})  # fmt: skip
-        base = _digit_pose(axes, {"index": (0.5, 0.6, 0.3), "middle": (0.5, 0.6, 0.3), **curled})
-        target = np.concatenate([_pad_ids(model, 3), _pad_ids(model, 6)])
-        closed = _fit_thumb(poser, base, target, ("index", "middle"))
-    elif grasp_type == "lateral":
-        opened = _digit_pose(axes, {d: _CURLED for d in fingers})
-        with torch.no_grad():
-            v = poser.canonical(torch.as_tensor(opened.reshape(1, 45)))[0].numpy()
-        idx = np.nonzero(part == 2)[0]
-        radial = idx[np.argsort(-v[idx, 2])[:8]]
-        closed = _fit_thumb(poser, opened, radial, ())
-    else:
-        raise InvalidInputError(f"grasp_type must be one of {GRASP_TYPES}, got {grasp_type!r}")
-    _SYNERGIES[key] = (opened, closed)
-    return opened, closed
-
-
 def _closing_digits(grasp_type: str) -> tuple[str, ...]:
     return {
         "power": _DIGITS,
@@ -338,7 +166,7 @@ def _pad_groups(model: HandModel, grasp_type: str) -> list[np.ndarray]:
 
 
 def _approach(
-    info: _ObjectInfo, poser: _Poser, opened: np.ndarray, closed: np.ndarray, grasp_type: str,
+    info: _ObjectInfo, poser: HandPoser, opened: np.ndarray, closed: np.ndarray, grasp_type: str,
     rng: np.random.Generator,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """World rotation R, translation T and the unit back-off direction of the approach."""
@@ -362,7 +190,7 @@ def _approach(
         # 17-40 degrees from the hand's lateral axis, so the thumb crosses over the object
         phi = rng.uniform(0.3, 0.7)
         R = frame_rotation([0, -1, 0], [np.sin(phi), 0, np.cos(phi)], -n, lateral)
-        anchor = v_open[_pad_ids(model, 0)].mean(axis=0)
+        anchor = v_open[pad_ids(model, 0)].mean(axis=0)
         return R, s + 0.004 * n - R @ anchor, n
     # precision / lateral: near an end e of the object, across its thinnest direction u
     e_axis = grip_axis if rng.random() < 0.6 else mid_axis
@@ -370,17 +198,17 @@ def _approach(
     u = thin_axis if e_axis is not thin_axis else mid_axis
     ext = float(((pts - c) @ e).max())
     if grasp_type == "precision":
-        thumb = v_closed[_pad_ids(model, 15)].mean(axis=0)
+        thumb = v_closed[pad_ids(model, 15)].mean(axis=0)
         anchor = thumb
-        pinch = v_half[_pad_ids(model, 3)].mean(axis=0) - v_half[_pad_ids(model, 15)].mean(axis=0)
+        pinch = v_half[pad_ids(model, 3)].mean(axis=0) - v_half[pad_ids(model, 15)].mean(axis=0)
         m = c + (ext - min(0.012, 0.45 * ext)) * e
         R = frame_rotation(pinch, anchor - wrist, u * rng.choice([-1.0, 1.0]), -e)
-        R = _rot(u, rng.uniform(-0.3, 0.3)) @ R
+        R = axis_rotation(u, rng.uniform(-0.3, 0.3)) @ R
         return R, m - R @ anchor, e
     # lateral: the object between the radial side of the index and the thumb pad
     idx = np.nonzero(part == 2)[0]
     anchor = v_open[idx[np.argsort(-v_open[idx, 2])[:8]]].mean(axis=0)
-    towards_thumb = v_open[_pad_ids(model, 15)].mean(axis=0) - anchor
+    towards_thumb = v_open[pad_ids(model, 15)].mean(axis=0) - anchor
     sgn = rng.choice([-1.0, 1.0])
     m = c + (ext - min(0.018, 0.45 * ext)) * e
     near = np.abs((pts - m) @ e) < 0.01
@@ -496,7 +324,7 @@ def synthesize_grasp(
     rng = np.random.default_rng([seed, GRASP_TYPES.index(grasp_type), 4099])
     info = info if info is not None else analyse_object(mesh, seed=seed)
     betas = torch.zeros(10, dtype=torch.float64) if betas is None else torch.as_tensor(betas)
-    poser = _Poser(model, betas)
+    poser = HandPoser(model, betas)
     opened, closed = synergy(model, grasp_type)
     R, T, back = _approach(info, poser, opened, closed, grasp_type, rng)
     Rt = torch.as_tensor(R)
