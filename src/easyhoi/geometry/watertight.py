@@ -38,7 +38,7 @@ from easyhoi.geometry.sdf import pseudonormal_signed_distance
 METHODS = ("auto", "meshfix", "fusion")
 SURFACES = ("carve", "poisson")
 #: Views that must see past a grid node before carving removes it.
-_CARVE_VOTES = 2
+_CARVE_VOTES = 1
 
 
 @dataclass(frozen=True)
@@ -95,9 +95,10 @@ class DepthView:
     Attributes
     ----------
     direction, u, v : (3,) orthonormal frame (``d``, image x axis, image y axis).
-    depth : (S, S) distance from the image plane to the first hit along ``-d``; inf on a miss.
-    points : (K, 3) hit positions; normals : (K, 3) face normals turned toward the camera;
-    face_ids : (K,) faces hit.
+    depth : (S, S) distance from the image plane to the first hit along ``-d``; inf on a miss,
+    -inf where the first hit is back-facing (seen through a hole).
+    points : (K, 3) front-facing hit positions; normals : (K, 3) their face normals (facing the
+    camera); face_ids : (K,) their faces.
     """
 
     direction: np.ndarray
@@ -130,12 +131,18 @@ def render_depth_views(
         dirs = np.broadcast_to(-d, origins.shape)
         loc, ray, tri = inter.intersects_location(origins, dirs, multiple_hits=False)
         ray = np.asarray(ray, dtype=np.int64)
-        depth = np.full(image_size * image_size, np.inf)
-        depth[ray] = (origins[ray] - loc) @ d
         tri = np.asarray(tri, dtype=np.int64)
         n = mesh.face_normals[tri]
-        n = n * np.where(n @ d < 0, -1.0, 1.0)[:, None]
-        views.append(DepthView(d, u, v, depth.reshape(image_size, image_size), loc, n, tri))
+        # a back-facing first hit means the ray entered through a hole (or hit inner junk):
+        # its depth says nothing about the outside, so the pixel is marked -inf (no carving)
+        front = n @ d > 0
+        depth = np.full(image_size * image_size, np.inf)
+        depth[ray] = np.where(front, (origins[ray] - loc) @ d, -np.inf)
+        views.append(
+            DepthView(
+                d, u, v, depth.reshape(image_size, image_size), loc[front], n[front], tri[front]
+            )
+        )
     return views
 
 
@@ -178,7 +185,6 @@ def _carve(views, mesh_vertices, mesh_faces, center, radius, bounds, resolution,
     rel = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3) - center
     # Carving gives the side away from the surface: a node is outside when some view sees past
     # it (its pixel misses the object or the first hit lies behind the node).
-    # Two votes are needed, so that a view looking through a small hole does not tunnel.
     votes = np.zeros(len(rel), dtype=np.int8)
     pix = 2.0 * radius / image_size
     todo = np.arange(len(rel))
