@@ -1,0 +1,128 @@
+"""Stage 3 (refinement): penetration removed, mask and pose kept; every term's gradient sign."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+import torch
+
+from easyhoi.config import get_preset
+from easyhoi.hand import load_hand_model
+from easyhoi.optim.refine import fit_refine, refine_terms
+from easyhoi.optim.run import plausibility
+from easyhoi.optim.scene import Scene
+from easyhoi.structures import HandParams
+from tests.optim_scenes import make_scene
+
+SIZE = 96
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_thread():
+    """One intra-op thread: these small problems run several times slower oversubscribed."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return load_hand_model("open")
+
+
+@pytest.fixture(scope="module")
+def box_scene(hand):
+    sc = make_scene("box", size=SIZE)
+    scene = Scene.from_input(sc.inp, hand, torch.float32)
+    cfg = replace(get_preset("fast").optim, render_size=SIZE)
+    return sc, scene, cfg
+
+
+def _pushed(sc, scene, hand, dist):
+    """The ground-truth hand moved by ``dist`` metres towards the object's centre."""
+    gt = sc.gt_hand.to(dtype=torch.float32)
+    wc = hand(gt).vertices[0].mean(0)
+    oc = scene.center * sc.gt_metric_scale
+    d = (oc - wc) / (oc - wc).norm()
+    return HandParams(gt.global_orient, gt.transl + dist * d, gt.pose), d
+
+
+@pytest.mark.parametrize("kind", ["cylinder", "box"])
+def test_refine_removes_penetration(kind, hand):
+    sc = make_scene(kind, size=SIZE)
+    scene = Scene.from_input(sc.inp, hand, torch.float32)
+    cfg = replace(get_preset("fast").optim, render_size=SIZE)
+    p0, _ = _pushed(sc, scene, hand, 0.006)
+    m, cam = sc.gt_metric_scale, sc.gt_camera.to(torch.float32)
+    before = plausibility(scene, p0, m, cam, SIZE)
+    p, res = fit_refine(scene, p0, m, cam, cfg.refine, cfg)
+    after = plausibility(scene, p, m, cam, SIZE)
+    assert before["penetration_depth_cm"] > 0.15 and before["intersection_volume_cm3"] > 0
+    assert after["penetration_depth_cm"] < 0.5 * before["penetration_depth_cm"]
+    assert after["intersection_volume_cm3"] <= before["intersection_volume_cm3"]
+    assert after["in_contact"]
+    assert after["hand_mask_iou"] > 0.8
+    assert after["hand_mask_iou"] >= before["hand_mask_iou"] - 0.02
+    assert float((p.pose - p0.pose).abs().sum()) < 2.0  # 45 angles, radians: stays near
+    assert res.losses[-1]["total"] < res.losses[0]["total"]
+    assert set(res.losses[0]) >= {"mask", "penetration", "contact", "reg", "total"}
+
+
+def _grad(scene, params, m, cfg, cam, masks, theta0, **weights):
+    zero = dict(hand_mask_weight=0.0, penetration_weight=0.0, contact_weight=0.0, reg_weight=0.0)
+    rc = replace(cfg.refine, **{**zero, **weights})
+    tr = params.transl.clone().requires_grad_(True)
+    pose = params.pose.clone().requires_grad_(True)
+    p = HandParams(params.global_orient, tr, pose)
+    terms = refine_terms(scene, p, m, theta0, rc, cam, masks)
+    terms["total"].backward()
+    grad = lambda x: torch.zeros_like(x[0]) if x.grad is None else x.grad[0]  # noqa: E731
+    return grad(tr), grad(pose), terms
+
+
+def test_penetration_gradient_pushes_the_hand_out(box_scene, hand):
+    sc, scene, cfg = box_scene
+    p0, inward = _pushed(sc, scene, hand, 0.01)
+    cam = sc.gt_camera.to(torch.float32).resized(SIZE, SIZE)
+    g, _, terms = _grad(scene, p0, sc.gt_metric_scale, cfg, cam, None, p0.pose,
+                        penetration_weight=1.0)  # fmt: skip
+    assert float(terms["penetration"]) > 0
+    assert float(-g @ inward) < 0  # descent moves the hand away from the object's centre
+
+
+def test_contact_gradient_pulls_a_separated_hand_in(box_scene, hand):
+    sc, scene, cfg = box_scene
+    p0, inward = _pushed(sc, scene, hand, -0.01)  # 1 cm away from the object
+    cam = sc.gt_camera.to(torch.float32).resized(SIZE, SIZE)
+    g, _, terms = _grad(scene, p0, sc.gt_metric_scale, cfg, cam, None, p0.pose,
+                        contact_weight=1.0, contact_max_distance=None)  # fmt: skip
+    assert float(terms["contact"]) > 0
+    assert float(-g @ inward) > 0  # descent moves the hand towards the object
+
+
+def test_mask_gradient_moves_the_hand_back_onto_the_mask(box_scene, hand):
+    sc, scene, cfg = box_scene
+    gt = sc.gt_hand.to(dtype=torch.float32)
+    cam = sc.gt_camera.to(torch.float32).resized(SIZE, SIZE)
+    right = cam.R[0] * sc.gt_metric_scale  # image-right direction, metric object frame
+    off = right / right.norm() * 0.01
+    p0 = HandParams(gt.global_orient, gt.transl + off, gt.pose)
+    masks = scene.masks_at(SIZE, SIZE)
+    g, _, terms = _grad(scene, p0, sc.gt_metric_scale, cfg, cam, masks, p0.pose,
+                        hand_mask_weight=1.0)  # fmt: skip
+    assert float(terms["mask"]) > 0
+    assert float(-g @ off) < 0  # descent moves it back (against the offset)
+
+
+def test_reg_gradient_is_the_sign_of_the_deviation(box_scene, hand):
+    sc, scene, cfg = box_scene
+    gt = sc.gt_hand.to(dtype=torch.float32)
+    theta0 = gt.pose + 0.1 * torch.sign(
+        torch.randn(1, 45, generator=torch.Generator().manual_seed(1))
+    )
+    cam = sc.gt_camera.to(torch.float32).resized(SIZE, SIZE)
+    _, gp, terms = _grad(scene, gt, sc.gt_metric_scale, cfg, cam, None, theta0, reg_weight=1.0)
+    assert float(terms["reg"]) == pytest.approx(4.5, rel=1e-4)
+    assert torch.equal(gp, torch.sign(gt.pose - theta0)[0])
