@@ -1,0 +1,172 @@
+"""Benchmark of the three-stage optimizer: the "fast" preset against the "paper" preset (CPU).
+
+Both presets run on the same synthetic hand-object scenes (``tests/optim_scenes.py``: an
+OpenHand grasping a cylinder or a box, masks rendered from the ground truth, the hand estimate
+perturbed) in the same process, one intra-op thread (the optimizer's small problems run several
+times slower oversubscribed on a busy machine). For each run: seconds per stage and in total,
+and quality against the ground truth: hand mask IoU, object (amodal) mask IoU, penetration depth
+(cm), intersection volume (cm^3, solid), signed contact distance (cm), mean hand-vertex error
+(cm, object frame scaled by the TRUE metric scale) and the metric-scale error (%).
+
+The paper preset is the paper's schedule (1000-iteration caps, 256 px renders, no early
+stopping besides the stop losses): about 1.5 minutes per scene on one idle CPU core.
+``--paper-cap N`` caps each of its stages at N iterations (registrations at 100/200 are kept
+when they fit); the table says which cap ran.
+
+Usage::
+
+    python benchmarks/bench_optim.py                 # 2 scenes, full paper schedule (~4 min)
+    python benchmarks/bench_optim.py --quick         # 1 scene, paper capped at 250 iterations
+    python benchmarks/bench_optim.py --paper-cap 300
+
+Results: a table on stdout and ``benchmarks/results/bench_optim.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+NOISE = dict(rot_noise=0.05, trans_noise=0.02, depth_noise=0.05, pose_noise=0.03)
+METRICS = (
+    ("hand_iou", "hand IoU", True),
+    ("object_iou", "obj IoU", True),
+    ("pen_cm", "pen cm", False),
+    ("iv_cm3", "IV cm3", False),
+    ("contact_cm", "|cont| cm", False),
+    ("hand_err_cm", "hand err cm", False),
+    ("scale_err_pct", "scale err %", False),
+)
+
+
+def _capped(cfg, cap: int):
+    if cap <= 0:
+        return cfg
+    return replace(
+        cfg,
+        camera=replace(cfg.camera, max_iters=min(cfg.camera.max_iters, cap)),
+        contact=replace(cfg.contact, max_iters=min(cfg.contact.max_iters, cap)),
+        refine=replace(cfg.refine, max_iters=min(cfg.refine.max_iters, cap)),
+    )
+
+
+def run_one(scene, preset: str, cap: int) -> dict:
+    import numpy as np
+    import torch
+
+    from easyhoi.config import get_preset
+    from easyhoi.optim.run import optimize
+
+    cfg = get_preset(preset).optim
+    if preset == "paper":
+        cfg = _capped(cfg, cap)
+    start = time.perf_counter()
+    res = optimize(scene.inp, cfg)
+    total = time.perf_counter() - start
+    model = scene.model
+    with torch.no_grad():
+        gt = model(scene.gt_hand).vertices[0].numpy() / scene.gt_metric_scale
+        v = model(res.hand_params.to(dtype=torch.float64)).vertices[0].numpy() / res.metric_scale
+    p = res.plausibility
+    return {
+        "preset": preset,
+        "paper_cap": cap if preset == "paper" else None,
+        "seconds": {
+            **{
+                k: round(float(res.timings.get(k, 0.0)), 3) for k in ("camera", "contact", "refine")
+            },
+            "total": round(total, 3),
+        },
+        "iterations": {s.name: s.iterations for s in res.stages},
+        "stop": {s.name: s.stop_reason for s in res.stages},
+        "hand_iou": p["hand_mask_iou"],
+        "object_iou": p["object_mask_iou"],
+        "pen_cm": p["penetration_depth_cm"],
+        "iv_cm3": p["intersection_volume_cm3"],
+        "contact_cm": abs(p["contact_distance_cm"]),
+        "in_contact": p["in_contact"],
+        "hand_err_cm": float(np.linalg.norm(v - gt, axis=1).mean() * scene.gt_metric_scale * 100),
+        "scale_err_pct": abs(res.metric_scale / scene.gt_metric_scale - 1.0) * 100,
+    }
+
+
+def _worse(fast: float, paper: float, higher_better: bool, tol: float = 0.05) -> bool:
+    """Fast is worse than paper by more than 5 % (relative, with a small absolute floor)."""
+    floor = {True: 0.01, False: 0.05}[higher_better]
+    if higher_better:
+        return fast < paper * (1 - tol) - 1e-9
+    return fast > paper * (1 + tol) + floor
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="1 scene, paper capped at 250")
+    ap.add_argument("--paper-cap", type=int, default=None, help="iterations cap (0 = none)")
+    ap.add_argument("--size", type=int, default=128, help="image size of the scenes (px)")
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args(argv)
+    sys.path.insert(0, str(ROOT))
+    import torch
+    from tests.optim_scenes import make_scene
+
+    torch.set_num_threads(args.threads)
+    kinds = ["box"] if args.quick else ["cylinder", "box"]
+    cap = args.paper_cap if args.paper_cap is not None else (250 if args.quick else 0)
+    rows = []
+    for kind in kinds:
+        scene = make_scene(kind, size=args.size, **NOISE)
+        for preset in ("fast", "paper"):
+            r = run_one(scene, preset, cap)
+            r["scene"] = kind
+            rows.append(r)
+            print(f"{kind:9s} {preset:6s} {r['seconds']['total']:7.1f} s", flush=True)
+
+    print()
+    head = (
+        f"{'scene':9s} {'preset':11s} {'camera':>7s} {'contact':>8s} {'refine':>7s} {'total':>7s}"
+    )
+    head += "".join(f" {label:>11s}" for _, label, _ in METRICS)
+    print(head)
+    for r in rows:
+        s = r["seconds"]
+        name = r["preset"] + (f"@{cap}" if r["preset"] == "paper" and cap > 0 else "")
+        line = f"{r['scene']:9s} {name:11s} {s['camera']:7.1f} {s['contact']:8.1f} "
+        line += f"{s['refine']:7.1f} {s['total']:7.1f}"
+        line += "".join(f" {r[k]:11.3f}" for k, _, _ in METRICS)
+        print(line)
+    summary = {}
+    for kind in kinds:
+        f = next(r for r in rows if r["scene"] == kind and r["preset"] == "fast")
+        p = next(r for r in rows if r["scene"] == kind and r["preset"] == "paper")
+        worse = [k for k, _, hb in METRICS if _worse(f[k], p[k], hb)]
+        ratio = p["seconds"]["total"] / max(f["seconds"]["total"], 1e-9)
+        summary[kind] = {"speedup": round(ratio, 2), "fast_worse_by_over_5pct": worse}
+        print(f"{kind}: paper/fast time ratio {ratio:.1f}x; fast worse (>5%) on: {worse or 'none'}")
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    out = {
+        "machine": {
+            "python": sys.version.split()[0],
+            "platform": platform.platform(),
+            "torch": torch.__version__,
+            "threads": args.threads,
+        },  # fmt: skip
+        "size": args.size,
+        "paper_cap": cap,
+        "rows": rows,
+        "summary": summary,
+    }
+    path = RESULTS / "bench_optim.json"
+    path.write_text(json.dumps(out, indent=2))
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
