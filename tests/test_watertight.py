@@ -2,18 +2,23 @@
 
 from __future__ import annotations
 
-import importlib.util
+import sys
 
 import numpy as np
 import pytest
 import trimesh
 
-from easyhoi.errors import InvalidInputError
+from easyhoi.errors import InvalidInputError, MissingDependencyError
 from easyhoi.geometry.mesh import load_mesh
 from easyhoi.geometry.watertight import decimate, fibonacci_directions, make_watertight
 
 SPHERE_VOLUME = 4.0 / 3.0 * np.pi * 0.5**3
-HAS_PYMESHLAB = importlib.util.find_spec("pymeshlab") is not None
+try:
+    import pymeshlab  # noqa: F401
+
+    HAS_PYMESHLAB = True
+except ImportError:
+    HAS_PYMESHLAB = False
 
 
 def messy_sphere():
@@ -151,3 +156,11 @@ def test_bad_arguments_raise():
         make_watertight(box, surface="marching")
     with pytest.raises(InvalidInputError, match="target_faces"):
         decimate(box, 2)
+
+
+def test_poisson_without_pymeshlab_names_the_fix(monkeypatch):
+    monkeypatch.setitem(sys.modules, "pymeshlab", None)  # import now fails
+    with pytest.raises(MissingDependencyError, match="pip install pymeshlab"):
+        make_watertight(
+            messy_sphere(), method="fusion", surface="poisson", num_views=4, image_size=32
+        )
