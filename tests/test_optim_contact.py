@@ -131,3 +131,20 @@ def test_depth_registration_keeps_the_projection(hand):
     st2.apply_translation(D, anchor, use_scale=False)
     np.testing.assert_allclose((st2.verts_obj().detach() - v0).double().numpy(),
                                np.broadcast_to(D, v0.shape), atol=1e-4)  # fmt: skip
+
+
+@pytest.mark.parametrize("side", ["right", "left"])
+def test_move_hand_is_a_rigid_motion_of_the_vertices(side, hand):
+    from easyhoi.geometry.transforms import axis_angle_to_matrix
+    from easyhoi.optim.scene import move_hand, rest_wrist
+    from easyhoi.structures import HandParams
+
+    g = torch.Generator().manual_seed(3)
+    p = HandParams(torch.randn(1, 3, generator=g), torch.randn(1, 3, generator=g) * 0.1,
+                   torch.randn(1, 45, generator=g) * 0.2, side=side)  # fmt: skip
+    R = axis_angle_to_matrix(torch.tensor([0.3, -0.5, 0.9]))
+    t = torch.tensor([0.1, -0.2, 0.3])
+    q = move_hand(p, R, t, rest_wrist(hand, p.betas))
+    assert q.side == side
+    want = hand(p).vertices[0] @ R.T + t
+    torch.testing.assert_close(hand(q).vertices[0], want, atol=1e-5, rtol=0)

@@ -52,8 +52,14 @@ def _stage_error(name: str, exc: Exception) -> OptimizationError:
     return OptimizationError(f"stage {name!r} failed: {exc}")
 
 
-def plausibility(scene: Scene, params, metric_scale: float, camera, render_size: int) -> dict:
-    """JSON-ready plausibility report of a hand (metric object frame) against the object."""
+def plausibility(
+    scene: Scene, params, metric_scale: float, camera, render_size: int, sdf_resolution: int = 64
+) -> dict:
+    """JSON-ready plausibility report of a hand (metric object frame) against the object.
+
+    ``contact_distance_cm`` is read from the object SDF grid at ``sdf_resolution``; the other
+    values come from :mod:`easyhoi.metrics` (exact meshes) and hard renders at ``render_size``.
+    """
     import trimesh
 
     from easyhoi import metrics
@@ -78,7 +84,7 @@ def plausibility(scene: Scene, params, metric_scale: float, camera, render_size:
             out[key] = None
     with torch.no_grad():
         v_obj = (verts_m / metric_scale).to(scene.dtype)
-        d = scene.sdf(v_obj, 64).min()
+        d = scene.sdf(v_obj, sdf_resolution).min()
         out["contact_distance_cm"] = float(d) * scene.extent * metric_scale * 100.0
         h, w = scene.render_size(1.0, render_size)
         cam = camera.detach().to(scene.dtype).resized(w, h)
@@ -147,7 +153,9 @@ def optimize(
         timings["setup"] = time.perf_counter() - t0
         stages, camera, params, m = _run_stages(inp, scene, config, progress, timings)
     t1 = time.perf_counter()
-    report = plausibility(scene, params, m, camera, config.render_size)
+    report = plausibility(
+        scene, params, m, camera, config.render_size, config.refine.sdf_resolution
+    )
     timings["plausibility"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     with torch.no_grad():
