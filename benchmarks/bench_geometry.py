@@ -123,7 +123,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--quick", action="store_true", help="fewer repeats, 3 objects")
     args = ap.parse_args()
-    repeat = 1 if args.quick else 3
+    repeat = 1 if args.quick else 2
     torch.set_num_threads(max(1, torch.get_num_threads()))
     res = {
         "machine": platform.platform(),
@@ -135,10 +135,11 @@ def main() -> None:
     }
     s = res["sdf"]
     print(
-        f"SDF {s['object']} ({s['faces']} faces): build 64^3 {s['build_64_s']:.2f} s, "
-        f"query 2k fwd+bwd {s['query_2k_fwd_bwd_ms']:.2f} ms"
+        f"SDF {s['object']} ({s['faces']} faces): build 64^3 {s['build_64_s']:.2f} s wall "
+        f"({s['build_64_cpu_s']:.2f} s CPU), query 2k fwd+bwd {s['query_2k_fwd_bwd_ms']:.2f} ms"
     )
     print("ICP " + ", ".join(f"{k} {v:.3f}" for k, v in res["icp"].items() if k.endswith("_s")))
+    print(f"load average {res['load_average'][0]:.1f} (wall times grow with it)")
     print(
         f"{'object':28s} {'auto route':10s} {'vol before':>10s} {'fusion':>8s} "
         f"{'hull':>8s} {'faces':>14s} {'auto s':>7s} {'fusion s':>8s}"
