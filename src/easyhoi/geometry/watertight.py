@@ -10,10 +10,13 @@ Two routes:
   outer surface and drops interior and hidden junk, then rebuild a closed surface from them and
   finish with MeshFix. The surface is rebuilt by one of
 
-  - ``surface="carve"`` (default): depth-map space carving. For every node of a grid, each view
-    says how far in front of (positive) or behind (negative) the observed surface the node is;
-    the field is the maximum over views and its zero level set (marching cubes) is the surface.
-    Needs no extra dependency; concavities seen by no view stay filled (visual-hull limit).
+  - ``surface="carve"`` (default): depth-map space carving. A grid node is outside when a
+    view sees past it (its pixel misses the object, or the first front-facing hit lies behind
+    the node; pixels whose first hit is back-facing look through a hole and never carve).
+    Within 1.5 voxels of the surface the views saw, the value is instead the exact distance
+    to that surface signed by its pseudo-normals, so parts thinner than a pixel survive and
+    the zero level set (marching cubes) lies on the scanned surface. Needs no extra
+    dependency; concavities seen by no view stay filled (visual-hull limit).
   - ``surface="poisson"``: the reference implementation's route: fused point cloud (voxel
     down-sampled, normals facing the camera that saw them) -> screened Poisson reconstruction
     -> drop vertices below the ``density_quantile`` density quantile. Needs ``pymeshlab``.
