@@ -230,21 +230,23 @@ def fit_camera(
             sil = soft_silhouette(scene.object_verts, scene.object_faces, cam, SILHOUETTE_SIGMA)
             iou = soft_iou_loss(sil, target)
             total = cfg.iou_weight * iou
-            terms = {"iou": float(iou)}
-            if cfg.use_sinkhorn and cfg.sinkhorn_weight > 0 and float(iou) > SINKHORN_GATE:
+            iou_v = float(iou.detach())
+            terms = {"iou": iou_v}
+            if cfg.use_sinkhorn and cfg.sinkhorn_weight > 0 and iou_v > SINKHORN_GATE:
                 sk = sinkhorn_mask_loss(
                     sil, target, cfg.sinkhorn_grid, cfg.sinkhorn_blur, cfg.sinkhorn_scaling
                 )
                 total = total + cfg.sinkhorn_weight * sk
-                terms["sinkhorn"] = float(sk)
-            terms["total"] = float(total)
+                terms["sinkhorn"] = float(sk.detach())
+            total_v = float(total.detach())
+            terms["total"] = total_v
             loop.record(it, terms)
-            loop.offer(float(iou), params.state(), it)
-            if float(iou) < cfg.stop_loss:
+            loop.offer(iou_v, params.state(), it)
+            if iou_v < cfg.stop_loss:
                 phase_reason = "stop_loss"
                 break
-            if float(total) < best_total - cfg.min_delta:
-                best_total, since_best = float(total), 0
+            if total_v < best_total - cfg.min_delta:
+                best_total, since_best = total_v, 0
             else:
                 since_best += 1
             if cfg.patience and since_best >= cfg.patience:

@@ -457,7 +457,7 @@ def fit_contact(
             loop.record(it, terms)
             loop.offer(score, state.state(), it)
             if not due:
-                if float(iou) < cfg.stop_loss:
+                if terms["iou"] < cfg.stop_loss:
                     phase_reason = "stop_loss"
                     break
                 if score < best_total - cfg.min_delta:
