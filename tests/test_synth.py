@@ -16,6 +16,7 @@ from easyhoi.synth import (
     GRASP_TYPES,
     OBJECT_KINDS,
     PERTURBATION_LEVELS,
+    list_objects,
     make_object,
     make_scene,
     synthesize_grasp,
@@ -98,9 +99,15 @@ def test_scanned_object_closed_and_decimated(shared_data):
     assert 0.8 < obj.mesh.volume / (np.pi * (e[:2].mean() / 2) ** 2 * e[2]) < 1.0
 
 
-def test_unknown_object_kind():
+def test_unknown_object_kind_and_folders(shared_data, tmp_path):
     with pytest.raises(InvalidInputError):
         make_object("teapot")
+    files = list_objects(shared_data / "objects")
+    assert len(files) == 14 and all(f.suffix == ".obj" for f in files)
+    with pytest.raises(InvalidInputError):
+        list_objects(tmp_path)  # no mesh inside
+    with pytest.raises(InvalidInputError):
+        list_objects(tmp_path / "missing")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -162,10 +169,14 @@ def test_grasp_deterministic_and_rejects_unknown_type(model):
 
 @pytest.mark.slow
 def test_grasp_stability_box(model):
+    """Palm facing down, a precision grasp holds a box; the same box away from the hand falls."""
+    from easyhoi.metrics.simulation import simulation_displacement
+
     mesh = make_object("box", 1).mesh
-    g = synthesize_grasp(model, mesh, "power", seed=1, check_stability=True)
-    # free fall over the 35 simulated steps would be 10.4 cm; a held box moves far less
-    assert g.stability_cm is not None and 0 <= g.stability_cm < 5.0
+    g = synthesize_grasp(model, mesh, "precision", seed=1, check_stability=True)
+    assert g.stability_cm is not None and 0 <= g.stability_cm < 3.0
+    away = simulation_displacement((g.vertices + 0.2, g.faces), mesh, gravity_dir=(0, 0, 1))
+    assert away.displacement > 9.0  # free fall over the 35 steps: 10.4 cm
 
 
 # ---------------------------------------------------------------------------------------------
@@ -181,6 +192,7 @@ def test_scene_deterministic(scenes):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
     c = make_scene(14, object_kind="box", grasp_type="precision")
     assert not np.array_equal(a.image, c.image)
+    assert not a.image.flags.writeable and not a.hand_mask.flags.writeable
 
 
 @pytest.mark.parametrize("grasp_type", GRASP_TYPES)

@@ -32,11 +32,14 @@ Three steps (all seeded, all in metres, world = the object's frame):
    ``w_pen * sum_v relu(-d(v))^2 + w_att * sum_g relu(min_{v in pad_g} d(v))^2
    + w_reg * |theta - theta_closed|^2``
 
-   with ``d`` the trilinear lookup in a 40^3 :func:`~easyhoi.geometry.sdf.build_sdf_grid` grid
-   of the object plus a per-vertex correction ``exact - grid`` refreshed every 10 iterations
-   with the exact signed distance (the grid alone misses thin parts and sharp edges), and
-   ``pad_g`` the contact-zone vertices of each closing digit (the palm too for power grasps,
-   the index middle phalanx for lateral ones).
+   with ``d`` each vertex's exact signed distance at the last refresh (every 5 iterations)
+   plus its motion since along the closest surface point's normal (a tangent-plane model; a
+   40^3 :func:`~easyhoi.geometry.sdf.build_sdf_grid` grid, used for steps 1-2, misses thin
+   parts and sharp edges), and ``pad_g`` the contact-zone vertices of each closing digit (the
+   palm too for power grasps, the index middle phalanx for lateral ones).
+
+Steps 1-3 are repeated with a new approach (up to ``attempts``) while the grasp penetrates by
+more than 2 mm or a required digit does not touch; the best attempt is kept.
 
 The result reports the penetration depth (:func:`easyhoi.metrics.penetration_depth`), the
 number of hand vertices within ``contact_threshold`` of the surface (exact distances), which
@@ -140,6 +143,14 @@ def analyse_object(mesh: trimesh.Trimesh, resolution: int = 40, seed: int = 0) -
     grip = int(np.argmin(np.abs(nrm @ axes.T).mean(axis=0)))
     order = [grip] + [i for i in range(3) if i != grip]
     return _ObjectInfo(grid, centre, axes[order], pts, nrm)
+
+
+#: Digits that must touch for a grasp to be accepted without another attempt.
+_REQUIRED = {
+    "power": {"thumb", "index", "middle", "ring"},
+    "precision": {"thumb", "index"},
+    "lateral": {"thumb", "index"},
+}
 
 
 def _closing_digits(grasp_type: str) -> tuple[str, ...]:
@@ -287,6 +298,7 @@ def synthesize_grasp(
     w_pen: float = 3e4,
     w_att: float = 3e3,
     w_reg: float = 1.0,
+    attempts: int = 3,
 ) -> Grasp:
     """Synthesize a grasp of ``mesh`` (watertight, metres) by the hand ``model``.
 
@@ -313,6 +325,10 @@ def synthesize_grasp(
         curved objects (V-HACD decomposition).
     w_pen, w_att, w_reg : float
         Refinement loss weights.
+    attempts : int
+        Approaches tried at most: a grasp is accepted at once when no vertex is more than
+        2 mm inside and the grasp type's required digits touch; otherwise the best of the
+        attempts (penetration in mm + 3 per missing digit) is returned.
 
     Returns
     -------
@@ -320,35 +336,46 @@ def synthesize_grasp(
     """
     if grasp_type not in GRASP_TYPES:
         raise InvalidInputError(f"grasp_type must be one of {GRASP_TYPES}, got {grasp_type!r}")
+    if not isinstance(attempts, int) or attempts < 1:
+        raise InvalidInputError(f"attempts must be a positive integer, got {attempts!r}")
     start = time.perf_counter()
     rng = np.random.default_rng([seed, GRASP_TYPES.index(grasp_type), 4099])
     info = info if info is not None else analyse_object(mesh, seed=seed)
     betas = torch.zeros(10, dtype=torch.float64) if betas is None else torch.as_tensor(betas)
     poser = HandPoser(model, betas)
     opened, closed = synergy(model, grasp_type)
-    R, T, back = _approach(info, poser, opened, closed, grasp_type, rng)
-    Rt = torch.as_tensor(R)
-    with torch.no_grad():
-        canon = poser.canonical(torch.as_tensor(opened.reshape(1, 45)))[0]
-    T = _back_off(info.grid, canon, Rt, torch.as_tensor(T), back, tol=0.0005)
-    Tt = torch.as_tensor(T)
-    pose_c = _close(poser, info.grid, opened, closed, _closing_digits(grasp_type), Rt, Tt,
-                    num_steps=40, contact_tol=0.0015)  # fmt: skip
-    pose0 = torch.as_tensor(pose_c.reshape(45))
-    pose, Rt, Tt = _refine(poser, info.grid, mesh, pose0, Rt, Tt, _pad_groups(model, grasp_type),
-                           iterations, w_pen, w_att, w_reg)  # fmt: skip
-    params = poser.params(pose, Rt, Tt)
-    with torch.no_grad():
-        out = model(params)
-    verts = out.vertices[0].double().numpy()
-    faces = out.faces.numpy().astype(np.int64)
-    d = exact_signed_distance(mesh, verts)
-    pen = penetration_depth((verts, faces), mesh)
-    close = d <= contact_threshold
     part = model.regions.vertex_part.numpy()
-    touching = [n for n, js in DIGIT_JOINTS.items() if close[np.isin(part, js)].any()]
-    if close[part == 0].any():
-        touching.append("palm")
+    best = None
+    for _ in range(attempts):
+        R, T, back = _approach(info, poser, opened, closed, grasp_type, rng)
+        Rt = torch.as_tensor(R)
+        with torch.no_grad():
+            canon = poser.canonical(torch.as_tensor(opened.reshape(1, 45)))[0]
+        T = _back_off(info.grid, canon, Rt, torch.as_tensor(T), back, tol=0.0005)
+        Tt = torch.as_tensor(T)
+        pose_c = _close(poser, info.grid, opened, closed, _closing_digits(grasp_type), Rt, Tt,
+                        num_steps=40, contact_tol=0.0015)  # fmt: skip
+        pose0 = torch.as_tensor(pose_c.reshape(45))
+        pose, Rt, Tt = _refine(poser, mesh, pose0, Rt, Tt, _pad_groups(model, grasp_type),
+                               iterations, w_pen, w_att, w_reg)  # fmt: skip
+        params = poser.params(pose, Rt, Tt)
+        with torch.no_grad():
+            out = model(params)
+        verts = out.vertices[0].double().numpy()
+        faces = out.faces.numpy().astype(np.int64)
+        d = exact_signed_distance(mesh, verts)
+        close = d <= contact_threshold
+        touching = [n for n, js in DIGIT_JOINTS.items() if close[np.isin(part, js)].any()]
+        if close[part == 0].any():
+            touching.append("palm")
+        missing = len(_REQUIRED[grasp_type] - set(touching))
+        score = max(-float(d.min()), 0.0) * 1000 + 3.0 * missing  # mm + 3 per missing digit
+        if best is None or score < best[0]:
+            best = (score, params, verts, faces, close, tuple(touching), Rt)
+        if score <= 2.0:
+            break
+    _, params, verts, faces, close, touching, Rt = best
+    pen = penetration_depth((verts, faces), mesh)
     seconds = time.perf_counter() - start
     stability = None
     if check_stability:
@@ -357,16 +384,35 @@ def synthesize_grasp(
         palm_down = Rt.numpy() @ np.array([0.0, -1.0, 0.0])  # pulls the object out of the palm
         sim = simulation_displacement((verts, faces), mesh, gravity_dir=palm_down)
         stability = float(sim.displacement)
-    return Grasp(params, verts, faces, grasp_type, pen, int(close.sum()), tuple(touching),
-                 stability, seconds)  # fmt: skip
+    return Grasp(params, verts, faces, grasp_type, pen, int(close.sum()), touching, stability,
+                 seconds)  # fmt: skip
 
 
-def _refine(poser, grid, mesh, pose0, R0, T0, groups, iterations, w_pen, w_att, w_reg):
+def _signed_distance_planes(mesh: trimesh.Trimesh, x: np.ndarray):
+    """Exact signed distance (N,) and unit outward directions (N, 3) at points (N, 3).
+
+    ``d(x + dx) ~ d + n . dx`` near ``x`` (the closest surface point's tangent plane).
+    """
+    import point_cloud_utils as pcu
+
+    v = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
+    f = np.ascontiguousarray(mesh.faces, dtype=np.int64)
+    d = exact_signed_distance(mesh, x)
+    _, fid, bc = pcu.closest_points_on_mesh(np.ascontiguousarray(x), v, f)
+    closest = np.einsum("nk,nkd->nd", bc, v[f[fid]])
+    n = (x - closest) / np.where(np.abs(d) > 1e-7, d, 1.0)[:, None]
+    flat = np.abs(d) <= 1e-7
+    n[flat] = mesh.face_normals[fid[flat]]
+    return d, n / np.linalg.norm(n, axis=1, keepdims=True).clip(1e-12)
+
+
+def _refine(poser, mesh, pose0, R0, T0, groups, iterations, w_pen, w_att, w_reg):
     """Adam on (rotation residual, translation residual, articulation).
 
-    The grid's interpolation error (large near thin parts and sharp edges) is cancelled by a
-    per-vertex correction ``exact - grid`` refreshed every 10 iterations with the exact signed
-    distance of ``mesh``.
+    The signed distance of every hand vertex is its exact value at the last refresh plus the
+    motion since along the closest point's outward direction (a tangent-plane model, exact to
+    first order, refreshed every 5 iterations). When a vertex is still more than 1.5 mm inside
+    after ``iterations`` steps, ``iterations // 2`` more run.
     """
     if iterations <= 0:
         return pose0, R0, T0
@@ -377,22 +423,35 @@ def _refine(poser, grid, mesh, pose0, R0, T0, groups, iterations, w_pen, w_att, 
                             {"params": [drot], "lr": 0.005},
                             {"params": [dt], "lr": 0.001}])  # fmt: skip
     groups = [torch.as_tensor(g) for g in groups if len(g)]
-    correction = torch.zeros(())
-    for it in range(iterations):
-        opt.zero_grad()
+
+    def place():
         R = axis_angle_to_matrix(drot) @ R0
-        x = poser.canonical(pose[None])[0] @ R.T + T0 + dt
-        d = query(grid, x)
-        if it % 10 == 0:
-            exact = exact_signed_distance(mesh, x.detach().numpy())
-            correction = torch.as_tensor(exact) - d.detach()
-        d = d + correction
+        return poser.canonical(pose[None])[0] @ R.T + T0 + dt
+
+    it, total = 0, iterations
+    while True:
+        if it == total:
+            if total > iterations:
+                break
+            with torch.no_grad():
+                deepest = exact_signed_distance(mesh, place().numpy()).min()
+            if deepest >= -0.0015:
+                break
+            total += iterations // 2
+        opt.zero_grad()
+        x = place()
+        if it % 5 == 0:
+            x_ref = x.detach()
+            planes = _signed_distance_planes(mesh, x_ref.numpy())
+            d_ref, n_ref = (torch.as_tensor(a) for a in planes)
+        d = d_ref + ((x - x_ref) * n_ref).sum(-1)
         pen = torch.relu(-d).pow(2).sum()
         att = sum(torch.relu(d[g].amin()).pow(2) for g in groups)
         reg = (pose - pose0).pow(2).sum()
         loss = w_pen * pen + w_att * att + w_reg * reg
         loss.backward()
         opt.step()
+        it += 1
     with torch.no_grad():
         R = axis_angle_to_matrix(drot) @ R0
     return pose.detach(), R.detach(), (T0 + dt).detach()

@@ -361,9 +361,7 @@ def make_hoi_input(scene, perturbation="none", seed: int = 0, rotate: bool | Non
     if rotate is not None:
         p = replace(p, object=replace(p.object, rotate=bool(rotate)))
     streams = [np.random.default_rng([seed, 2024, k]) for k in range(5)]
-    from easyhoi.synth.scene import _default_model
-
-    model = _default_model()
+    model = scene.hand_model
     cam = scene.camera
     gt_world = scene.hand_params.to(torch.float64)
     gt_cam = transform_hand(gt_world, cam.R.numpy(), cam.t.numpy(), model)
@@ -397,7 +395,7 @@ def make_hoi_input(scene, perturbation="none", seed: int = 0, rotate: bool | Non
         object_mesh=mesh,
         hand_params=est.to(torch.float32),
         hand_camera=hand_camera,
-        hand_model="open",
+        hand_model="mano" if getattr(model, "name", "") == "mano" else "open",
         meta=meta,
     )
 

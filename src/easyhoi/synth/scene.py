@@ -63,6 +63,10 @@ class Scene:
         Their pixel coordinates.
     timings : dict
         Seconds per step ("object", "grasp", "camera", "render", "photo", "total").
+    hand_model : HandModel
+        The model the hand parameters belong to (not compared, not shown).
+
+    The arrays are read-only.
     """
 
     seed: int
@@ -78,6 +82,14 @@ class Scene:
     keypoints_3d: np.ndarray
     keypoints_2d: np.ndarray
     timings: dict = field(default_factory=dict)
+    hand_model: object = field(default=None, compare=False, repr=False)
+
+    def __post_init__(self):
+        for name in ("image", "hand_mask", "object_mask", "hand_amodal", "object_amodal", "depth",
+                     "keypoints_3d", "keypoints_2d"):  # fmt: skip
+            getattr(self, name).setflags(write=False)
+        if self.hand_model is None:
+            object.__setattr__(self, "hand_model", _default_model())
 
     @property
     def hand_params(self) -> HandParams:
@@ -288,7 +300,7 @@ def make_scene(
     timings = {"object": t1 - t0, "grasp": t2 - t1, "camera": t3 - t2, "render": t4 - t3,
                "photo": t5 - t4, "total": t5 - t0}  # fmt: skip
     return Scene(int(seed), obj, grasp, cam, image, hand_vis, obj_vis, h_hit, o_hit, depth,
-                 kp3, kp2, timings)  # fmt: skip
+                 kp3, kp2, timings, model)  # fmt: skip
 
 
 _MODEL = {}
