@@ -61,17 +61,21 @@ def full_result(scene, hand):
     return res, calls
 
 
+@pytest.mark.slow
 def test_full_run_reconstructs_the_scene(full_result, scene, hand):
     res, _ = full_result
     assert isinstance(res, HOIResult)
     assert [s.name for s in res.stages] == ["initial", "camera", "contact", "refine"]
     gt = hand(scene.gt_hand.to(dtype=torch.float32)).vertices[0].numpy() / scene.gt_metric_scale
-    err = lambda s: (
-        np.linalg.norm(  # noqa: E731
-            hand(s.hand_params).vertices[0].detach().numpy() / s.metric_scale - gt, axis=1
-        ).mean()
-        * scene.gt_metric_scale
-    )
+
+    def err(s):
+        return (
+            np.linalg.norm(
+                hand(s.hand_params).vertices[0].detach().numpy() / s.metric_scale - gt, axis=1
+            ).mean()
+            * scene.gt_metric_scale
+        )
+
     assert err(res.stages[-1]) < 0.5 * err(res.stages[0])
     assert err(res.stages[-1]) < 0.02  # metres
     assert abs(res.metric_scale / scene.gt_metric_scale - 1.0) < 0.1
