@@ -64,9 +64,18 @@ def test_fast_preset_is_default_and_cheaper():
     )
     assert f.optim.contact.register_at == (20, 60)
     assert all(s.patience > 0 for s in (f.optim.camera, f.optim.contact, f.optim.refine))
-    # the loss weights and learning rates are the paper's in both presets
-    for name in ("hand_mask_weight", "penetration_weight", "contact_weight", "reg_weight"):
-        assert getattr(f.optim.refine, name) == getattr(p.optim.refine, name)
+    # the paper preset keeps the paper's loss weights and learning rates
+    r = p.optim.refine
+    assert (r.hand_mask_weight, r.penetration_weight, r.contact_weight, r.reg_weight) == (
+        5.0,
+        10.0,
+        5.0,
+        0.1,
+    )
+    assert (r.lr_global, r.lr_pose) == (1e-4, 1e-2)
+    # fast keeps the learning rates; its weights are rebalanced for a dense hand mesh
+    assert (f.optim.refine.lr_global, f.optim.refine.lr_pose) == (1e-4, 1e-2)
+    assert f.optim.refine.penetration_weight > r.penetration_weight
     assert f.perception == PerceptionConfig() and f.hand_model == "open"
     assert f.perception.hand == "mediapipe" and f.perception.object == "silhouette"
 
