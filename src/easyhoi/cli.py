@@ -270,6 +270,24 @@ def _add_model_options(p: argparse.ArgumentParser) -> None:
                    help="folder or path of MANO_RIGHT.pkl (or set EASYHOI_MANO_DIR)")  # fmt: skip
 
 
+def _set_torch_threads() -> None:
+    """One torch thread unless EASYHOI_TORCH_THREADS says otherwise.
+
+    easyhoi's tensors are small (a few thousand vertices, <= 256 px masks): on this workload extra
+    intra-op threads cost more in synchronisation than they save, badly so on a loaded machine.
+    """
+    import os
+
+    import torch
+
+    raw = os.environ.get("EASYHOI_TORCH_THREADS", "1")
+    try:
+        n = max(1, int(raw))
+    except ValueError:
+        raise InvalidInputError(f"EASYHOI_TORCH_THREADS must be an integer, got {raw!r}") from None
+    torch.set_num_threads(n)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="easyhoi",
@@ -354,6 +372,7 @@ def main(argv: list[str] | None = None) -> int:
     level = logging.DEBUG if args.verbose else (logging.ERROR if args.quiet else logging.WARNING)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:
+        _set_torch_threads()
         return int(args.func(args) or 0)
     except EasyHOIError as exc:
         if args.verbose:
