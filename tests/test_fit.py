@@ -11,12 +11,15 @@ from tests.toy_hand import ToyHand
 
 
 def plausible_pose(batch: int, gen: torch.Generator, dtype=torch.float64) -> torch.Tensor:
-    """Flexion (about the model's z axis for fingers) with small abduction, no twist."""
-    pose = torch.zeros(batch, 15, 3, dtype=dtype)
-    flex = torch.rand(batch, 15, generator=gen, dtype=dtype) * 1.0
-    abd = (torch.rand(batch, 15, generator=gen, dtype=dtype) - 0.5) * 0.3
-    pose[..., 2] = -flex  # curl toward the palm (-y) is a rotation about -z
-    pose[..., 1] = abd * torch.tensor([1.0, 0.0, 0.0] * 5, dtype=dtype)[None]
+    """Flexion about each joint's flexion axis, small sideways spread at the knuckles, no twist."""
+    from easyhoi.hand.fit import anatomical_prior_weights
+
+    axes = anatomical_prior_weights(ToyHand(), 1.0, dtype).axes  # (15, 3, 3): flex, bone, side
+    flex = torch.rand(batch, 15, 1, generator=gen, dtype=dtype) * 1.0
+    spread = (torch.rand(batch, 15, 1, generator=gen, dtype=dtype) - 0.5) * 0.3
+    knuckle = torch.zeros(15, 1, dtype=dtype)
+    knuckle[[0, 3, 6, 9]] = 1.0
+    pose = flex * axes[None, :, 0] + spread * knuckle * axes[None, :, 2]
     return pose.reshape(batch, 45)
 
 
@@ -70,7 +73,9 @@ def test_fit_left_hand_round_trip():
     model = ToyHand()
     g = torch.Generator().manual_seed(7)
     gt = random_params(2, g)
-    gt_left = HandParams(gt.global_orient, gt.transl, gt.pose, gt.betas, side="left")
+    from easyhoi.hand.base import mirror_params
+
+    gt_left = mirror_params(gt)  # the mirror image of an anatomical right hand
     target = model(gt_left).keypoints
     fit = fit_keypoints(model, target, side="left")
     assert fit.params.side == "left"

@@ -78,7 +78,8 @@ def cmd_reconstruct(args) -> int:
             failures += 1
             _err(f"{image}: {type(exc).__name__}: {exc}")
             continue
-        _say(args, f"{image}: done in {rec.seconds:.1f} s -> {out}")
+        where = rec.files[0].parent if rec.files else out
+        _say(args, f"{image}: done in {rec.seconds:.1f} s -> {where} (open report.html)")
         for f in rec.files:
             logger.info("wrote %s", f)
     return EXIT_BATCH_PARTIAL if failures else 0

@@ -20,6 +20,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, replace
 
+import numpy as np
 import torch
 
 from easyhoi.checks import check_finite, check_shape
@@ -47,6 +48,9 @@ class FitConfig:
         pose_prior: weight of ``||pose||^2``.
         shape_prior: weight of ``||betas||^2``.
         fit_shape: optimise betas (else they stay at the initial value).
+        anatomy_weight: weight of the anatomical prior (:func:`anatomical_prior_weights`):
+            penalises twist about the bones, sideways bending of the finger hinges and
+            hyper-extension, which noisy keypoints otherwise turn into crumpled fingers.
     """
 
     iterations: int = 20
@@ -56,6 +60,7 @@ class FitConfig:
     pose_prior: float = 1e-5
     shape_prior: float = 1e-5
     fit_shape: bool = True
+    anatomy_weight: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -166,6 +171,7 @@ def fit_keypoints(
                 init = mirror_params(init)
 
     p0 = _initial_params(model, k3, k2, cam, relative_3d, B, init)
+    anatomy = anatomical_prior_weights(model, config.anatomy_weight, dt)
     n_shape = 10 if config.fit_shape else 0
 
     def unpack(x: torch.Tensor) -> HandParams:
@@ -191,6 +197,12 @@ def fit_keypoints(
             )
             parts.append(r.reshape(B, -1))
         parts.append(x[:, 6:51] * config.pose_prior**0.5)
+        if anatomy is not None:
+            aa = x[:, 6:51].reshape(B, 15, 1, 3)
+            comp = (aa * anatomy.axes).sum(-1)  # (B, 15, 3): flexion, twist, sideways
+            hyper = torch.relu(-comp[..., 0] - HYPEREXTENSION_ALLOWANCE)
+            parts.append((comp[..., 1:] * anatomy.weights[:, 1:]).reshape(B, -1))
+            parts.append(hyper * anatomy.weights[:, 0])
         if n_shape:
             parts.append(x[:, 51:61] * config.shape_prior**0.5)
         return torch.cat(parts, dim=1)
@@ -236,6 +248,56 @@ def fit_keypoints(
             kp = mirror_points(kp)
     cast = lambda x: None if x is None else x.to(out_dtype)  # noqa: E731
     return KeypointFit(fitted.to(dtype=out_dtype), kp.to(out_dtype), cast(e3), cast(e2), last)
+
+
+#: Flexion below this (radians, i.e. hyper-extension) is free; beyond it the prior applies.
+HYPEREXTENSION_ALLOWANCE = 0.15
+
+
+@dataclass(frozen=True)
+class AnatomicalPrior:
+    """Per-joint axes and weights of the anatomical prior.
+
+    Attributes:
+        axes: (15, 3, 3) rows: flexion axis, bone axis (twist), sideways axis, rest frame.
+        weights: (15, 3) residual weights per radian: hyper-extension, twist, sideways.
+    """
+
+    axes: torch.Tensor
+    weights: torch.Tensor
+
+
+def anatomical_prior_weights(model: HandModel, scale: float, dtype) -> AnatomicalPrior | None:
+    """Joint axes from the model's rest geometry and the prior's weights (None if ``scale == 0``).
+
+    Finger hinges (PIP, DIP) bend about one axis: sideways bending costs 3 per radian; the
+    knuckles (MCP) may spread (0.7); twist about a bone costs 3 everywhere except the thumb's
+    base (CMC), which is a saddle joint with wide freedom (0.3). Weights are per radian in the
+    units of the keypoint residuals (1 = one robust scale of keypoint error).
+    """
+    if scale <= 0:
+        return None
+    from easyhoi.hand.regions import bone_axes, flexion_axes, rest_geometry
+
+    verts, _, _, joints = rest_geometry(model)
+    flex = flexion_axes(model)
+    bone = bone_axes(joints, verts[model.tip_vertex_ids.cpu().numpy()])[1:]
+    side = np.cross(flex, bone)
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    w = np.zeros((15, 3))
+    for j in range(1, 16):
+        if j == 13:  # thumb CMC
+            w[j - 1] = (0.5, 0.3, 0.3)
+        elif j in (1, 4, 7, 10):  # finger MCP
+            w[j - 1] = (3.0, 3.0, 0.7)
+        elif j == 14:  # thumb MCP
+            w[j - 1] = (1.0, 1.5, 1.0)
+        else:  # PIP, DIP, thumb IP
+            w[j - 1] = (3.0, 3.0, 3.0)
+    axes = np.stack([flex, bone, side], axis=1)
+    return AnatomicalPrior(
+        torch.as_tensor(axes, dtype=dtype), torch.as_tensor(w * scale, dtype=dtype)
+    )
 
 
 def _rotation_between(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
