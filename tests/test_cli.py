@@ -1,3 +1,4 @@
+import pytest
 import trimesh
 
 from easyhoi.cli import main
@@ -45,3 +46,20 @@ def test_mano_without_file_is_a_clear_error(tmp_path, capsys, monkeypatch):
     assert rc == 2
     err = capsys.readouterr().err
     assert "MANO" in err and "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_example_reconstructs_a_synthetic_photo_end_to_end(tmp_path, capsys):
+    import json
+
+    rc = main(["example", "--seed", "3", "--size", "256", "--out", str(tmp_path)])
+    assert rc == 0
+    folder = tmp_path / "synthetic_3"
+    for name in ("scene.glb", "hand.ply", "object.ply", "result.json", "overlay.png",
+                 "report.html"):  # fmt: skip
+        assert (folder / name).stat().st_size > 0, name
+    res = json.loads((folder / "result.json").read_text())
+    text = json.dumps(res)
+    assert "penetration_depth_cm" in text and "hand_mask_iou" in text
+    out = capsys.readouterr().out
+    assert "results:" in out and "report.html" in out
