@@ -40,7 +40,14 @@ from easyhoi.config import CameraStageConfig, OptimConfig
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import StageResult
 from easyhoi.optim.losses import sinkhorn_mask_loss, soft_iou_loss
-from easyhoi.optim.scene import SILHOUETTE_SIGMA, Scene, StageLoop, hard_iou, phase_sizes
+from easyhoi.optim.scene import (
+    SILHOUETTE_SIGMA,
+    Patience,
+    Scene,
+    StageLoop,
+    hard_iou,
+    phase_sizes,
+)
 from easyhoi.render.soft import soft_silhouette
 from easyhoi.structures import Camera
 
@@ -223,7 +230,7 @@ def fit_camera(
         h, w = scene.render_size(frac, optim_cfg.render_size)
         target = scene.masks_at(h, w)["amodal"]
         loop.reset_best()
-        best_total, since_best = math.inf, 0
+        patience = Patience(cfg.patience, cfg.min_delta)
         phase_reason = "max_iters"
         for _ in range(n_iters):
             cam = params.camera().resized(w, h)
@@ -245,11 +252,7 @@ def fit_camera(
             if iou_v < cfg.stop_loss:
                 phase_reason = "stop_loss"
                 break
-            if total_v < best_total - cfg.min_delta:
-                best_total, since_best = total_v, 0
-            else:
-                since_best += 1
-            if cfg.patience and since_best >= cfg.patience:
+            if patience.exhausted(total_v):
                 phase_reason = "patience"
                 break
             opt.zero_grad(set_to_none=True)

@@ -58,6 +58,7 @@ from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import HOIInput, StageResult
 from easyhoi.optim.losses import soft_iou_loss
 from easyhoi.optim.scene import (
+    Patience,
     Scene,
     StageLoop,
     camera_hand_to_object,
@@ -423,7 +424,7 @@ def fit_contact(
         h, w = scene.render_size(frac, optim_cfg.render_size)
         masks = scene.masks_at(h, w)
         cam = state.camera.resized(w, h)
-        best_total, since_best = math.inf, 0
+        patience = Patience(cfg.patience, cfg.min_delta)
         phase_reason = "max_iters"
         for _ in range(n_iters):
             if due and it >= due[0]:
@@ -447,7 +448,7 @@ def fit_contact(
                     info.update(state.apply_translation(D, anchor, cfg.optimise_scale))
                 info["metric_scale"] = state.m
                 registrations.append(info)
-                best_total, since_best = math.inf, 0
+                patience.reset()
             verts = state.verts_obj()
             _, visible, _ = scene.hand_silhouettes(verts, cam)
             iou = soft_iou_loss(visible, masks["hand"])
@@ -460,11 +461,7 @@ def fit_contact(
                 if terms["iou"] < cfg.stop_loss:
                     phase_reason = "stop_loss"
                     break
-                if score < best_total - cfg.min_delta:
-                    best_total, since_best = score, 0
-                else:
-                    since_best += 1
-                if cfg.patience and since_best >= cfg.patience:
+                if patience.exhausted(score):
                     phase_reason = "patience"
                     break
             opt.zero_grad(set_to_none=True)

@@ -17,7 +17,6 @@ best state is returned. Stopping: ``patience`` or the phase's share of ``max_ite
 
 from __future__ import annotations
 
-import math
 import time
 
 import torch
@@ -25,7 +24,7 @@ import torch
 from easyhoi.config import OptimConfig, RefineStageConfig
 from easyhoi.hoi import StageResult
 from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
-from easyhoi.optim.scene import Scene, StageLoop, hard_iou, phase_sizes
+from easyhoi.optim.scene import Patience, Scene, StageLoop, hard_iou, phase_sizes
 from easyhoi.structures import Camera, HandParams
 
 __all__ = ["refine_terms", "fit_refine"]
@@ -127,7 +126,7 @@ def fit_refine(
         masks = scene.masks_at(h, w)
         cam = camera.resized(w, h)
         loop.reset_best()
-        best_total, since_best = math.inf, 0
+        patience = Patience(cfg.patience, cfg.min_delta)
         phase_reason = "max_iters" if opt else "nothing_to_optimise"
         for _ in range(n_iters):
             terms = refine_terms(scene, current(), metric_scale, theta0, cfg, cam, masks)
@@ -136,11 +135,7 @@ def fit_refine(
             loop.record(it, plain)
             state = (go.detach().clone(), tr.detach().clone(), pose.detach().clone())
             loop.offer(plain["total"], state, it)
-            if plain["total"] < best_total - cfg.min_delta:
-                best_total, since_best = plain["total"], 0
-            else:
-                since_best += 1
-            if cfg.patience and since_best >= cfg.patience:
+            if patience.exhausted(plain["total"]):
                 phase_reason = "patience"
                 break
             if not total.requires_grad:

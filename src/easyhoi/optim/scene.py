@@ -307,6 +307,30 @@ def hard_iou(pred: torch.Tensor, target: torch.Tensor) -> float:
     return float((a & b).sum()) / union if union else 1.0
 
 
+class Patience:
+    """Early stopping: exhausted once ``patience`` steps pass without a ``min_delta`` gain.
+
+    ``patience = 0`` never stops (the paper preset runs its full schedule).
+    """
+
+    def __init__(self, patience: int, min_delta: float):
+        self.patience = int(patience)
+        self.min_delta = float(min_delta)
+        self.reset()
+
+    def reset(self) -> None:
+        self.best = math.inf
+        self.since_best = 0
+
+    def exhausted(self, value: float) -> bool:
+        """Record ``value``; True when the caller should stop."""
+        if value < self.best - self.min_delta:
+            self.best, self.since_best = value, 0
+        else:
+            self.since_best += 1
+        return bool(self.patience) and self.since_best >= self.patience
+
+
 class StageLoop:
     """Bookkeeping shared by the stages: history, progress callback, best state, stopping.
 
