@@ -18,13 +18,21 @@ Object candidates: a second GrabCut in the crop with the hand as "sure foregroun
 within ``near`` of the hand "probably foreground", the rest "probably background" and a thin
 crop border "sure background"; foreground minus the (dilated) hand minus skin-coloured forearm
 pixels gives candidate components. :func:`filter_by_hand_contact` (the paper's contour-guided
-filtering) keeps those whose contour lies within ``max_gap_px`` of the hand's contour. An empty
-result is reported as ``has_object=False``.
+filtering) keeps those whose contour lies within ``max_gap_px`` of the hand's contour.
+
+Held-object cues (:func:`component_cues`, :func:`held_object_verdict`) then drop touching
+regions that are not a held object: a component must touch the hand on its fingers/palm side
+(not only at the wrist), must not be a skin-coloured region larger than the hand (a face, an
+arm), and its outline must be a real boundary (the colour must not continue across it, as it
+does where a piece of a wall, a shirt or a body was cut out of a larger region). The kept
+components together must be between ``min_object_area`` and ``max_object_area`` times the hand's
+area. An empty result is reported as ``has_object=False``.
 """
 
 from __future__ import annotations
 
 import logging
+from dataclasses import asdict, dataclass
 
 import cv2
 import numpy as np
@@ -121,6 +129,114 @@ def filter_by_hand_contact(
     return kept
 
 
+def grip_contact_share(
+    component: np.ndarray, hand_dist: np.ndarray, along: np.ndarray, palm_len: float, gap: float
+) -> float:
+    """Share of a component's contact with the hand on the fingers/palm side of the hand.
+
+    Contact pixels are the component's pixels within ``gap`` (+1) of the hand (``hand_dist``:
+    distance to the hand mask). ``along`` is each pixel's coordinate along the wrist -> middle
+    MCP axis, 0 at the wrist; contact less than ``0.5 * palm_len`` past the wrist is on the
+    wrist/forearm side. Returns 0 when the component does not touch the hand.
+    """
+    contact = component & (hand_dist <= gap + 1.0)
+    if not contact.any():
+        return 0.0
+    return float((along[contact] >= 0.5 * palm_len).mean())
+
+
+def outline_continuation(
+    component: np.ndarray, hand: np.ndarray, lab: np.ndarray, width: int, tol: float = 10.0
+) -> float:
+    """Share of the band just outside a component whose colour continues the component's.
+
+    For each pixel 2..``width`` px outside the component (and not on or next to the hand), the
+    smoothed Lab colour is compared with that of the nearest component pixel; a difference below
+    ``tol`` means the region continues past the outline there. A real object's outline is an
+    image boundary (share near 0); a piece cut out of a larger region (a wall, a shirt, a body)
+    continues along part of its outline. Returns 0 when there is no such band.
+    """
+    dist, labels = cv2.distanceTransformWithLabels(
+        (~component).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
+    )
+    near_hand = cv2.dilate(hand.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    band = (dist >= 2) & (dist <= width) & ~near_hand
+    if not band.any():
+        return 0.0
+    # DIST_LABEL_PIXEL numbers the zero pixels (the component) in raster order from 1
+    zy, zx = np.nonzero(component)
+    idx = labels[band] - 1
+    diff = np.linalg.norm(lab[band] - lab[zy[idx], zx[idx]], axis=-1)
+    return float((diff < tol).mean())
+
+
+@dataclass(frozen=True)
+class ComponentCues:
+    """Held-object cues of one candidate component (see :func:`component_cues`).
+
+    Attributes:
+        area_ratio: component area / the hand's reference area.
+        grip_share: share of its hand contact on the fingers/palm side (not the wrist).
+        skin_share: share of its pixels matching the hand's own colour model.
+        continuation: share of the band outside its outline where its colour continues.
+    """
+
+    area_ratio: float
+    grip_share: float
+    skin_share: float
+    continuation: float
+
+
+def component_cues(
+    component: np.ndarray,
+    hand: np.ndarray,
+    hand_dist: np.ndarray,
+    along: np.ndarray,
+    lab: np.ndarray,
+    skin_d2: np.ndarray,
+    palm_len: float,
+    gap: float,
+    hand_area: float,
+) -> ComponentCues:
+    """The held-object cues of one (h, w) bool component in the working crop.
+
+    ``hand_dist`` is the distance to the hand mask, ``along`` the coordinate along the hand's
+    axis (0 at the wrist), ``lab`` the smoothed Lab image, ``skin_d2`` the squared normalised
+    distance to the hand's colour model (< 9 is skin) and ``hand_area`` the hand's reference
+    area in pixels.
+    """
+    return ComponentCues(
+        area_ratio=float(component.sum()) / max(1.0, hand_area),
+        grip_share=grip_contact_share(component, hand_dist, along, palm_len, gap),
+        skin_share=float((skin_d2[component] < 9.0).mean()) if component.any() else 0.0,
+        continuation=outline_continuation(component, hand, lab, max(3, int(0.15 * palm_len))),
+    )
+
+
+def held_object_verdict(
+    cues: ComponentCues,
+    min_grip_share: float = 0.5,
+    body_skin_share: float = 0.5,
+    body_area_ratio: float = 1.6,
+    max_continuation: float = 0.2,
+) -> str | None:
+    """Why a hand-touching component is not (part of) a held object, or None when it may be.
+
+    * ``"wrist"``: less than ``min_grip_share`` of its contact is on the fingers/palm side;
+    * ``"body"``: skin-coloured (share >= ``body_skin_share``) and larger than
+      ``body_area_ratio`` x the hand: another body part such as a face or an arm. Skin-like
+      objects (cardboard, beige cups) pass when they are not larger than the hand;
+    * ``"continues"``: its colour continues across >= ``max_continuation`` of its outline.
+    """
+    if cues.grip_share < min_grip_share:
+        return "wrist"
+    if cues.skin_share >= body_skin_share and cues.area_ratio > body_area_ratio:
+        return "body"
+    if cues.continuation >= max_continuation:
+        return "continues"
+    return None
+
+
 class _ColourModel:
     """Robust Gaussian in Lab fitted to sample pixels (median and 1.4826 x MAD per channel)."""
 
@@ -149,7 +265,12 @@ class ClassicalHOISegmenter:
     max_gap : float
         Contour-filter gap in palm lengths (converted to pixels per image).
     min_object_area : float
-        Smallest kept object, as a fraction of the hand mask's area.
+        Smallest kept object (all kept components), as a fraction of the hand's area.
+    max_object_area : float
+        Largest kept object, as a multiple of the hand's area (bigger: background, no object).
+        The hand's area is that of its mask, floored at ``2 L^2`` (L: palm length).
+    min_grip_share, body_skin_share, body_area_ratio, max_continuation : float
+        Thresholds of :func:`held_object_verdict`.
     iterations : int
         GrabCut iterations.
     bg_colour_dist : float
@@ -167,6 +288,11 @@ class ClassicalHOISegmenter:
         near: float = 1.2,
         max_gap: float = 0.08,
         min_object_area: float = 0.08,
+        max_object_area: float = 2.5,
+        min_grip_share: float = 0.5,
+        body_skin_share: float = 0.5,
+        body_area_ratio: float = 1.6,
+        max_continuation: float = 0.2,
         iterations: int = 5,
         bg_colour_dist: float = 10.0,
         max_border_share: float = 0.12,
@@ -179,6 +305,13 @@ class ClassicalHOISegmenter:
         self.near = float(near)
         self.max_gap = float(max_gap)
         self.min_object_area = float(min_object_area)
+        self.max_object_area = float(max_object_area)
+        self.verdict_args = {
+            "min_grip_share": float(min_grip_share),
+            "body_skin_share": float(body_skin_share),
+            "body_area_ratio": float(body_area_ratio),
+            "max_continuation": float(max_continuation),
+        }
         self.iterations = int(iterations)
         self.seed = int(seed)
 
@@ -232,11 +365,8 @@ class ClassicalHOISegmenter:
 
         obj_cands = self._objects(img, hand_mask, arm, L)
         gap = self.max_gap * L + 1.0
-        kept = filter_by_hand_contact(obj_cands, hand_mask, gap)
-        hand_area = max(1, int(hand_mask.sum()))
-        kept = [k for k in kept if k.sum() >= 0.02 * hand_area]
-        if sum(int(k.sum()) for k in kept) < self.min_object_area * hand_area:
-            kept = []
+        touching = filter_by_hand_contact(obj_cands, hand_mask, gap)
+        kept, judged, verdict = self._held(touching, hand_mask, lab, skin_d2, along, L, gap)
         obj = np.any(kept, axis=0) if kept else np.zeros(shape, bool)
 
         def full(m):
@@ -262,9 +392,40 @@ class ClassicalHOISegmenter:
                 "palm_length_px": L / s,
                 "max_gap_px": gap / s,
                 "n_candidates": len(obj_cands),
+                "n_touching": len(touching),
                 "n_kept": len(kept),
+                "components": judged,
+                "verdict": verdict,
             },
         )
+
+    def _held(self, touching, hand, lab, skin_d2, along, L, gap):
+        """Apply the held-object cues: (kept components, per-component records, verdict)."""
+        hand_area = max(float(hand.sum()), 2.0 * L * L)
+        hand_dist = cv2.distanceTransform((~hand).astype(np.uint8), cv2.DIST_L2, 5)
+        smooth = cv2.GaussianBlur(lab.astype(np.float32), (0, 0), 1.0)
+        kept, judged = [], []
+        for comp in touching:
+            if comp.sum() < 0.02 * hand_area:
+                judged.append(
+                    {"area_ratio": round(float(comp.sum()) / hand_area, 3), "rejected": "tiny"}
+                )
+                continue
+            cues = component_cues(comp, hand, hand_dist, along, smooth, skin_d2, L, gap, hand_area)
+            why = held_object_verdict(cues, **self.verdict_args)
+            judged.append({**{k: round(v, 3) for k, v in asdict(cues).items()}, "rejected": why})
+            if why is None:
+                kept.append(comp)
+        total = sum(float(k.sum()) for k in kept) / hand_area
+        if not kept:
+            verdict = "no hand-touching candidate passed the cues"
+        elif total < self.min_object_area:
+            verdict, kept = f"object too small ({total:.2f} x hand)", []
+        elif total > self.max_object_area:
+            verdict, kept = f"object too large ({total:.2f} x hand): background", []
+        else:
+            verdict = f"held object ({total:.2f} x hand)"
+        return kept, judged, verdict
 
     def _hand(self, img, lab, kp, L):
         shape = img.shape[:2]
