@@ -3,21 +3,29 @@
 Usage::
 
     python scripts/perception_contact_sheet.py --images DIR --out sheet.png [--table table.md]
+    python scripts/perception_contact_sheet.py --images DIR --out sheet.png --chain [--table t.md]
 
 Per photo (one row): input with keypoints, hand mask, object mask (kept components green,
 rejected candidates red), inpainted image, amodal mask. The Markdown table lists the outcome of
 each step and its time.
+
+Default mode runs the steps directly on the first (most confident) hand. ``--chain`` calls the
+library's chain (:func:`easyhoi.perception.chain.perceive`, which tries every hand, fits the hand
+model and builds the object mesh) and records its per-step timings; a photo where no hand holds
+an object is timed up to the NoObjectError and drawn with the first hand's masks.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from easyhoi.errors import NoHandError, NoObjectError
 from easyhoi.io.image import load_image
 from easyhoi.perception.amodal import ClassicalAmodalSegmenter, amodal_prompts
 from easyhoi.perception.inpaint import OpenCVInpainter
@@ -104,18 +112,113 @@ def draw_row(rgb: np.ndarray, res: dict) -> np.ndarray:
     return np.concatenate([_tile(t) for t in tiles], axis=1)
 
 
+CHAIN_STEPS = (
+    ("detect", "hand detection"),
+    ("segment", "segmentation"),
+    ("fit", "hand fit"),
+    ("inpaint", "inpainting"),
+    ("amodal", "amodal segmentation"),
+    ("mesh", "object mesh"),
+    ("watertight", "watertight"),
+)
+
+
+def run_perceive(rgb: np.ndarray, seed: int = 0) -> dict:
+    """:func:`perceive` on one image: outcome, per-step seconds (summed per step) and total.
+
+    Step times come from the chain's report; when it raises (no hand / no held object) they are
+    taken from the progress callback's timestamps instead.
+    """
+    from easyhoi.perception.chain import perceive
+
+    marks: list[tuple[str, float]] = []
+    out: dict = {"error": None, "inp": None, "report": None}
+    t0 = time.perf_counter()
+    try:
+        out["inp"], out["report"] = perceive(
+            rgb, seed=seed, progress=lambda name: marks.append((name, time.perf_counter()))
+        )
+        timings = dict(out["report"].timings)
+    except (NoHandError, NoObjectError) as exc:
+        out["error"] = f"{type(exc).__name__}: {exc}"
+        end = time.perf_counter()
+        stamps = [t for _, t in marks] + [end]
+        timings = {name: stamps[i + 1] - stamps[i] for i, (name, _) in enumerate(marks)}
+    out["total"] = time.perf_counter() - t0
+    out["hands_tried"] = sum(name.startswith("segmentation") for name, _ in marks)
+    out["t"] = {key: 0.0 for key, _ in CHAIN_STEPS}
+    for name, sec in timings.items():
+        for key, prefix in CHAIN_STEPS:
+            if name.startswith(prefix):
+                out["t"][key] += sec
+    return out
+
+
+def chain_row(rgb: np.ndarray, res: dict, parts: tuple) -> np.ndarray:
+    """Contact-sheet row of a :func:`run_perceive` result (masks recomputed when it raised)."""
+    inp = res["inp"]
+    if inp is None:
+        return draw_row(rgb, run_chain(rgb, *parts))
+    from easyhoi.perception.base import HandDetection
+
+    kp = np.asarray(inp.meta["keypoints2d"])
+    drawn = {
+        "hands": [HandDetection(kp, None, inp.meta["hand_side"], 1.0)],
+        "seg": _ChainSeg(inp.hand_mask, inp.object_mask),
+        "inpainted": inp.inpainted_image,
+    }
+    a = _overlay(inp.inpainted_image, inp.amodal_mask, (0, 128, 255))
+    return np.concatenate([draw_row(rgb, drawn)[:, : 4 * TILE], _tile(a)], axis=1)
+
+
+class _ChainSeg:
+    def __init__(self, hand_mask, object_mask):
+        self.hand_mask, self.object_mask, self.candidates = hand_mask, object_mask, ()
+
+
+def chain_table(files, args, parts) -> tuple[list[np.ndarray], list[str]]:
+    keys = [k for k, _ in CHAIN_STEPS]
+    lines = [
+        "| photo | hands | side | object | " + " | ".join(f"{k} s" for k in keys) + " | total s |",
+        "|" + "---|" * (len(keys) + 5),
+    ]
+    rows = []
+    for f in files:
+        rgb = load_image(f).rgb
+        res = run_perceive(rgb, seed=args.seed)
+        rep = res["report"]
+        hands = rep.hands_found if rep else res["hands_tried"]
+        obj = "yes" if res["inp"] is not None else "no"
+        side = rep.side if rep else "-"
+        lines.append(
+            f"| {f.name} | {hands} | {side} | {obj} | "
+            + " | ".join(f"{res['t'][k]:.2f}" for k in keys)
+            + f" | {res['total']:.2f} |"
+        )
+        print(lines[-1], flush=True)
+        rows.append(chain_row(rgb, res, parts))
+    return rows, lines
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--images", required=True, type=Path)
     p.add_argument("--out", required=True, type=Path)
     p.add_argument("--table", type=Path, default=None)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--chain", action="store_true", help="time the library chain (perceive)")
     args = p.parse_args(argv)
+    import torch
+
+    torch.set_num_threads(int(os.environ.get("EASYHOI_TORCH_THREADS", "1")))
     files = sorted(f for f in args.images.iterdir() if f.suffix.lower() in EXTS)
     if not files:
         raise SystemExit(f"no images in {args.images}")
     det, seg = MediaPipeHands(), ClassicalHOISegmenter(seed=args.seed)
     inp, amo = OpenCVInpainter(), ClassicalAmodalSegmenter(seed=args.seed)
+    if args.chain:
+        rows, lines = chain_table(files, args, (det, seg, inp, amo))
+        return _write(rows, lines, args)
     rows, lines = [], []
     lines.append(
         "| photo | size | hand | side | pass | object | hand px | object px | amodal px "
@@ -142,6 +245,10 @@ def main(argv=None) -> int:
             + f" | {total:.2f} |"
         )
         print(lines[-1], flush=True)
+    return _write(rows, lines, args)
+
+
+def _write(rows, lines, args) -> int:
     sheet = np.concatenate(rows, axis=0)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(args.out), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
