@@ -16,15 +16,15 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from easyhoi.config import EasyHOIConfig
-from easyhoi.errors import NoHandError, NoObjectError
+from easyhoi.errors import InvalidInputError, NoHandError, NoObjectError
 from easyhoi.hand import load_hand_model
 from easyhoi.hoi import HOIInput
-from easyhoi.perception.base import create
+from easyhoi.perception.base import HandDetection, Segmentation, create
 
 logger = logging.getLogger(__name__)
 
@@ -98,14 +98,33 @@ def perceive(
         report.timings[name] = round(time.perf_counter() - t0, 4)
         return out
 
-    hands = timed("hand detection", create("hand", pc.hand).detect, image)
+    pv = provided or Provided()
+    for name in ("hand_mask", "object_mask", "amodal_mask"):
+        m = getattr(pv, name)
+        if m is not None and np.shape(m) != (H, W):
+            h, w = np.shape(m)[:2]
+            raise InvalidInputError(f"{name} is {h}x{w} but the image is {H}x{W} (height x width)")
+    masks_given = pv.hand_mask is not None and pv.object_mask is not None
+    if pv.hand is not None and masks_given:  # nothing left for the detector to do
+        say("hand detection (provided)")
+        side = pv.hand[0].side
+        hands = [HandDetection(np.zeros((0, 2)), None, side, 1.0, meta={"source": "provided"})]
+    else:
+        hands = timed("hand detection", create("hand", pc.hand).detect, image)
     report.hands_found = len(hands)
     if not hands:
         raise NoHandError("no hand found in the photo")
-    segmenter = create("segmenter", pc.segmenter)
+    segmenter = None if masks_given else create("segmenter", pc.segmenter)
     chosen = seg = None
     for i, hand in enumerate(hands):
-        s = timed(f"segmentation (hand {i})", segmenter.segment, image, hand)
+        if masks_given:
+            s = Segmentation(pv.hand_mask, pv.object_mask, bool(pv.object_mask.any()))
+        else:
+            s = timed(f"segmentation (hand {i})", segmenter.segment, image, hand)
+            if pv.hand_mask is not None or pv.object_mask is not None:
+                hm = s.hand_mask if pv.hand_mask is None else pv.hand_mask
+                om = s.object_mask if pv.object_mask is None else pv.object_mask
+                s = Segmentation(hm, om, bool(om.any()), s.candidates, s.meta)
         if s.has_object:
             chosen, seg = hand, s
             break
@@ -115,20 +134,33 @@ def perceive(
     report.side, report.has_object = chosen.side, True
 
     model = load_hand_model(cfg.hand_model, cfg.mano_dir)
-    chosen = timed("hand fit", fit_detection, chosen, model, W, H)
+    if pv.hand is not None:
+        params, camera = pv.hand
+        chosen = replace(chosen, side=params.side, params=params, camera=camera)
+        report.side = params.side
+        report.notes.append("hand provided (imported), not fitted")
+    else:
+        chosen = timed("hand fit", fit_detection, chosen, model, W, H)
 
     inpainted = timed("inpainting", create("inpainter", pc.inpainter).inpaint, image, seg.hand_mask)
     points, box = amodal_prompts(seg.object_mask, seed=seed)
-    amodal = timed(
-        "amodal segmentation",
-        create("amodal", pc.amodal).segment,
-        inpainted,
-        points,
-        box,
-        seg.object_mask,
-    )
+    if pv.amodal_mask is not None:
+        amodal = pv.amodal_mask
+    else:
+        amodal = timed(
+            "amodal segmentation",
+            create("amodal", pc.amodal).segment,
+            inpainted,
+            points,
+            box,
+            seg.object_mask,
+        )
     amodal = np.asarray(amodal, bool) | seg.object_mask
-    mesh = timed("object mesh", create("object", pc.object).reconstruct, inpainted, amodal)
+    if pv.object_mesh is not None:
+        mesh = pv.object_mesh.copy()
+        report.notes.append("object mesh provided (imported)")
+    else:
+        mesh = timed("object mesh", create("object", pc.object).reconstruct, inpainted, amodal)
     if not mesh.is_watertight:
         mesh, wt = timed("watertight", make_watertight, mesh)
         report.notes.append(f"object mesh repaired ({wt.method})")
