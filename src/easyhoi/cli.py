@@ -113,9 +113,14 @@ def cmd_reconstruct(args) -> int:
     from easyhoi.pipeline import reconstruct_photo
 
     cfg = _config_from_args(args)
+    _check_out_dir(Path(args.out))
     provided = _provided_from_args(args)
     if len(args.images) > 1 and provided is not None:
         raise InvalidInputError("--hand-mask/--object-mask/... imports need exactly one photo")
+    if cfg.hand_model == "mano":  # a missing or unsafe MANO file fails now, not after perception
+        from easyhoi.hand import load_hand_model
+
+        load_hand_model(cfg.hand_model, cfg.mano_dir)
     failures = 0
     for image in args.images:
         out = Path(args.out) if len(args.images) == 1 else Path(args.out) / Path(image).stem
@@ -261,6 +266,19 @@ def _config_from_args(args):
     if args.set:
         cfg = with_overrides(cfg, parse_overrides(args.set, cfg))
     return cfg
+
+
+def _check_out_dir(out: Path) -> None:
+    """Refuse an output folder that can never be written before any work is done."""
+    import os
+
+    p = out
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    if not p.is_dir():
+        raise InvalidInputError(f"cannot write to --out {out}: {p} exists and is not a folder")
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise InvalidInputError(f"cannot write to --out {out}: no write permission on {p}")
 
 
 def _provided_from_args(args):
