@@ -1,0 +1,379 @@
+"""Tables, goal checks, plots and gallery of a :func:`easyhoi.synth.benchmark.run_benchmark` report.
+
+Every table is Markdown; numbers are means over the scenes (``mean ± std`` where shown). Units:
+S.D. cm, I.V. cm^3, MPJPE / MPVPE cm, C.D. cm^2 / 10 (MOHO), times s.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["all_tables", "goals", "save_report", "tables_markdown"]
+
+STAGE_ROWS = (
+    ("initial", "no optimization"),
+    ("camera", "+ camera setup"),
+    ("contact", "+ contact alignment"),
+    ("refine", "+ refinement (full)"),
+)
+#: (key, header, format, mean ± std?)
+HAND_COLUMNS = (
+    ("sd_cm", "S.D. cm", "{:.2f}", True),
+    ("iv_cm3", "I.V. cm3 solid", "{:.2f}", True),
+    ("iv_obman_cm3", "I.V. cm3 ObMan", "{:.2f}", False),
+    ("mpjpe_ra_cm", "MPJPE cm", "{:.2f}", False),
+    ("mpvpe_ra_cm", "MPVPE cm", "{:.2f}", False),
+    ("mpjpe_root_cm", "MPJPE root cm", "{:.2f}", False),
+    ("mpjpe_cam_cm", "MPJPE cam cm", "{:.1f}", False),
+    ("mpjpe_world_cm", "MPJPE world cm", "{:.2f}", False),
+    ("in_contact", "contact", "{:.2f}", False),
+    ("hand_iou", "hand IoU", "{:.3f}", False),
+    ("object_iou", "obj IoU", "{:.3f}", False),
+    ("scale_err_pct", "scale err %", "{:.1f}", False),
+)
+#: Metrics compared between the fast and paper presets: (key, higher is better).
+PRESET_METRICS = (
+    ("sd_cm", False),
+    ("iv_cm3", False),
+    ("mpjpe_ra_cm", False),
+    ("mpvpe_ra_cm", False),
+    ("mpjpe_root_cm", False),
+    ("hand_iou", True),
+    ("in_contact", True),
+)
+TIMED = ("setup", "initial", "camera", "contact", "refine", "plausibility", "total")
+
+
+def _values(dicts, key) -> np.ndarray:
+    return np.array([float(d[key]) for d in dicts if d.get(key) is not None], float)
+
+
+def _cell(dicts, key, fmt, with_std) -> str:
+    v = _values(dicts, key)
+    if len(v) == 0:
+        return "n/a"
+    s = fmt.format(v.mean())
+    return s + (" ± " + fmt.format(v.std()) if with_std else "")
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def _hand_table(named: list[tuple[str, list[dict]]], first: str) -> str:
+    header = [first] + [h for _, h, _, _ in HAND_COLUMNS]
+    rows = [[name] + [_cell(ds, k, f, s) for k, _, f, s in HAND_COLUMNS] for name, ds in named]
+    return _table(header, rows)
+
+
+def stage_table(report: dict) -> str:
+    sc = report["scenes"]
+    named = [(label, [r["stages"][k] for r in sc]) for k, label in STAGE_ROWS]
+    named.append(("(GT hand, input object)", [r["ground_truth"] for r in sc]))
+    return _hand_table(named, "stage")
+
+
+def loss_table(report: dict) -> str:
+    sc = report["scenes"]
+    names = list(sc[0]["loss_ablation"])
+    return _hand_table([(n, [r["loss_ablation"][n] for r in sc]) for n in names], "stage-3 loss")
+
+
+def object_input_table(report: dict) -> str:
+    sc = report["scenes"]
+    named = [
+        (
+            "estimator hand (no optimization, own camera)",
+            [r["object_input"]["estimator"] for r in sc],
+        ),
+        ("reconstructed (perturbed) object", [r["object_input"]["reconstructed"] for r in sc]),
+        ("ground-truth object shape", [r["object_input"]["gt"] for r in sc]),
+    ]
+    return _hand_table(named, "object input")
+
+
+def object_quality_table(report: dict) -> str:
+    sc = report["scenes"]
+    header = [
+        "object input",
+        "C.D. (aligned)",
+        "F@5mm",
+        "F@10mm",
+        "C.D. (as placed)",
+        "F@5mm",
+        "F@10mm",
+    ]
+    rows = []
+    for key, label in (("reconstructed", "reconstructed (perturbed)"), ("gt", "ground truth")):
+        row = [label]
+        for align in ("translation_scale", "none"):
+            ds = [r["object_quality"][key][align] for r in sc]
+            row += [
+                _cell(ds, "cd", "{:.3f}", False),
+                _cell(ds, "f5", "{:.3f}", False),
+                _cell(ds, "f10", "{:.3f}", False),
+            ]
+        rows.append(row)
+    return _table(header, rows)
+
+
+def _paper_rows(report: dict) -> list[dict]:
+    return [r for r in report["scenes"] if "paper" in r]
+
+
+def runtime_table(report: dict) -> str:
+    sc, pr = report["scenes"], _paper_rows(report)
+    cap = report["settings"].get("paper_cap", 0)
+    pname = "paper" + (f" (capped at {cap} it.)" if cap else "")
+    header = [
+        "stage",
+        f"fast, all {len(sc)} scenes",
+        f"fast, same {len(pr)} scenes",
+        f"{pname}, {len(pr)} scenes",
+        "paper / fast",
+    ]
+    rows = []
+    for k in TIMED:
+        f_all = _values([r["timings"]["fast"] for r in sc], k)
+        f_k = _values([r["timings"]["fast"] for r in pr], k)
+        p_k = _values([r["timings"]["paper"] for r in pr], k)
+        ratio = f"{p_k.mean() / f_k.mean():.1f}x" if len(p_k) and f_k.mean() > 0 else "n/a"
+        cells = [f"{v.mean():.2f}" if len(v) else "n/a" for v in (f_all, f_k, p_k)]
+        rows.append([k] + cells + [ratio])
+    return _table(header, rows)
+
+
+def _worse(fast: float, paper: float, higher_better: bool, tol: float = 0.05) -> bool:
+    """Fast worse than paper by > 5 % (relative), with a small absolute floor for near-zero
+    values (0.01 for ratios and IoUs, 0.05 for cm / cm^3)."""
+    if higher_better:
+        return fast < paper * (1 - tol) - 0.01
+    return fast > paper * (1 + tol) + 0.05
+
+
+def preset_quality_table(report: dict) -> str:
+    pr = _paper_rows(report)
+    if not pr:
+        return "(the paper preset did not run: --paper-scenes 0)"
+    header = ["metric", "fast", "paper", "fast worse by > 5 %"]
+    rows = []
+    for k, hb in PRESET_METRICS:
+        f = _values([r["stages"]["refine"] for r in pr], k).mean()
+        p = _values([r["paper"] for r in pr], k).mean()
+        rows.append([k, f"{f:.3f}", f"{p:.3f}", "yes" if _worse(f, p, hb) else "no"])
+    return _table(header, rows)
+
+
+def goals(report: dict) -> list[dict]:
+    """The paper-derived goals (METHOD.md section 4) with the measured value and pass / miss."""
+    sc = report["scenes"]
+
+    def mean(getter, key):
+        return float(_values([getter(r) for r in sc], key).mean())
+
+    sd0, sd3 = (
+        mean(lambda r: r["stages"]["initial"], "sd_cm"),
+        mean(lambda r: r["stages"]["refine"], "sd_cm"),
+    )
+    out = [
+        {
+            "goal": "S.D. down >= 47 % from no optimization to full",
+            "value": f"{(1 - sd3 / sd0) * 100:.1f} % ({sd0:.2f} -> {sd3:.2f} cm)" if sd0 else "n/a",
+            "met": bool(sd0 and 1 - sd3 / sd0 >= 0.47),
+        }
+    ]
+    for key, label in (("iv_cm3", "solid"), ("iv_obman_cm3", "ObMan")):
+        ivc, ivr = (
+            mean(lambda r: r["stages"]["contact"], key),
+            mean(lambda r: r["stages"]["refine"], key),
+        )
+        ok = ivc > 0 and ivr / ivc <= 0.41
+        val = f"{ivr / ivc * 100:.0f} % ({ivc:.2f} -> {ivr:.2f} cm3)" if ivc > 0 else "n/a (0)"
+        out.append(
+            {
+                "goal": f"I.V. ({label}) after refinement <= 41 % of after contact",
+                "value": val,
+                "met": bool(ok),
+            }
+        )
+    for key, label in (("mpjpe_ra_cm", "rotation-aligned"), ("mpjpe_root_cm", "root-aligned")):
+        e0 = mean(lambda r: r["object_input"]["estimator"], key)
+        e1 = mean(lambda r: r["object_input"]["gt"], key)
+        out.append(
+            {
+                "goal": f"GT object: MPJPE ({label}) >= 25 % better than the estimator's",
+                "value": f"{(1 - e1 / e0) * 100:.1f} % ({e0:.2f} -> {e1:.2f} cm)",
+                "met": bool(1 - e1 / e0 >= 0.25),
+            }
+        )
+    pr = _paper_rows(report)
+    if pr:
+        f = _values([r["timings"]["fast"] for r in pr], "total").mean()
+        p = _values([r["timings"]["paper"] for r in pr], "total").mean()
+        out.append(
+            {
+                "goal": "fast >= 10x faster than paper",
+                "value": f"{p / f:.1f}x",
+                "met": bool(p / f >= 10),
+            }
+        )
+        worse = [
+            k
+            for k, hb in PRESET_METRICS
+            if _worse(
+                _values([r["stages"]["refine"] for r in pr], k).mean(),
+                _values([r["paper"] for r in pr], k).mean(),
+                hb,
+            )
+        ]
+        out.append(
+            {
+                "goal": "fast: no metric worse than paper by > 5 %",
+                "value": ", ".join(worse) or "none worse",
+                "met": not worse,
+            }
+        )
+    return out
+
+
+def goals_table(report: dict) -> str:
+    rows = [[g["goal"], g["value"], "met" if g["met"] else "MISSED"] for g in goals(report)]
+    return _table(["goal (paper)", "measured", ""], rows)
+
+
+def all_tables(report: dict) -> dict[str, str]:
+    """Title -> Markdown table."""
+    n, k = len(report["scenes"]), len(_paper_rows(report))
+    return {
+        f"Stage ablation ({n} scenes, snapshots of one fast run per scene)": stage_table(report),
+        f"Loss ablation (stage 3 re-run from the contact snapshot, {n} scenes)": loss_table(report),
+        "Reconstructed vs ground-truth object input": object_input_table(report),
+        "Object quality (MOHO convention, metres)": object_quality_table(report),
+        f"Runtime per stage, seconds (paper preset on the first {k} scenes only)": runtime_table(
+            report
+        ),
+        f"Quality fast vs paper (same {k} scenes)": preset_quality_table(report),
+        "Goals from the paper's tables": goals_table(report),
+    }
+
+
+def tables_markdown(report: dict) -> str:
+    parts = [f"## {title}\n\n{table}\n" for title, table in all_tables(report).items()]
+    return "\n".join(parts)
+
+
+# ----------------------------------------------------------------------------------------------
+# files
+# ----------------------------------------------------------------------------------------------
+
+
+def _stage_plot(report: dict, path: Path) -> None:
+    from easyhoi.viz.plots import new_figure
+
+    sc = report["scenes"]
+    fig = new_figure(9, 3.4)
+    labels = [lab.replace("+ ", "+").replace(" (full)", "") for _, lab in STAGE_ROWS]
+    for i, (key, title) in enumerate(
+        (
+            ("sd_cm", "S.D. (cm)"),
+            ("iv_cm3", "I.V. solid (cm3)"),
+            ("mpjpe_ra_cm", "MPJPE rotation-aligned (cm)"),
+        )
+    ):
+        ax = fig.add_subplot(1, 3, i + 1)
+        vals = [_values([r["stages"][k] for r in sc], key) for k, _ in STAGE_ROWS]
+        ax.bar(
+            range(4),
+            [v.mean() for v in vals],
+            yerr=[v.std() for v in vals],
+            capsize=3,
+            color="#4c78a8",
+        )
+        ax.set_xticks(range(4), labels, rotation=30, ha="right", fontsize=8)
+        ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def _runtime_plot(report: dict, path: Path) -> None:
+    from easyhoi.viz.plots import new_figure
+
+    pr = _paper_rows(report)
+    if not pr:
+        return
+    stages = ("initial", "camera", "contact", "refine", "plausibility")
+    fig = new_figure(6, 3.2)
+    ax = fig.add_subplot(1, 1, 1)
+    x = np.arange(len(stages))
+    for j, preset in enumerate(("fast", "paper")):
+        ys = [_values([r["timings"][preset] for r in pr], k).mean() for k in stages]
+        ax.bar(x + (j - 0.5) * 0.4, ys, 0.4, label=preset)
+    ax.set_xticks(x, stages)
+    ax.set_ylabel("seconds")
+    ax.set_yscale("log")
+    ax.set_title(f"Seconds per stage ({len(pr)} scenes, 1 thread)", fontsize=10)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def _gallery_png(gallery: list[dict], path: Path) -> None:
+    from easyhoi.viz.plots import new_figure
+
+    if not gallery:
+        return
+    cols = (("photo", "photo"), ("overlay", "result over the photo"), ("side", "side view"))
+    fig = new_figure(3 * 2.6, len(gallery) * 2.8)
+    for i, g in enumerate(gallery):
+        for j, (k, title) in enumerate(cols):
+            ax = fig.add_subplot(len(gallery), 3, 3 * i + j + 1)
+            ax.imshow(g[k])
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.set_title(title if j else f"{g['title']}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def save_report(report: dict, out_dir) -> dict[str, Path]:
+    """Write ``results.json``, ``tables.md``, ``stages.png``, ``runtime.png``, ``gallery.png``."""
+    from easyhoi.io.atomic import atomic_write_bytes
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {
+        k: out / n
+        for k, n in (
+            ("json", "results.json"),
+            ("markdown", "tables.md"),
+            ("stages", "stages.png"),
+            ("runtime", "runtime.png"),
+            ("gallery", "gallery.png"),
+        )
+    }
+    data = {k: v for k, v in report.items() if k != "gallery"}
+    data["goals"] = goals(report)
+    atomic_write_bytes(paths["json"], json.dumps(data, indent=1, default=_json).encode())
+    head = (
+        f"# Synthetic benchmark\n\n{len(report['scenes'])} scenes, wall time "
+        f"{report['wall_seconds']:.0f} s, load average before/after "
+        f"{report['machine']['load_before']} / {report['machine']['load_after']}\n\n"
+    )
+    atomic_write_bytes(paths["markdown"], (head + tables_markdown(report)).encode())
+    _stage_plot(report, paths["stages"])
+    _runtime_plot(report, paths["runtime"])
+    _gallery_png(report.get("gallery", []), paths["gallery"])
+    return {k: p for k, p in paths.items() if p.exists()}
+
+
+def _json(x):
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
