@@ -149,27 +149,31 @@ def test_outline_continuation_flags_a_piece_cut_out_of_a_larger_region():
     region[20:100, 20:100] = True
     lab[region] = (40.0, 30.0, -20.0)
     no_hand = np.zeros_like(region)
-    assert outline_continuation(region, no_hand, lab, 6) == 0.0  # a whole, bounded object
+    assert outline_continuation(region, no_hand, lab, 6) == (0.0, 0.0)  # a whole object
     piece = region.copy()
     piece[:, 60:] = False  # the left half: its right edge runs through the same colour
-    share = outline_continuation(piece, no_hand, lab, 6)
+    share, length = outline_continuation(piece, no_hand, lab, 6)
     assert 0.15 < share < 0.5
+    assert length == pytest.approx(80, abs=4)  # the 80 px cut edge
     # the band next to the hand is not judged
     hand = np.zeros_like(region)
     hand[15:105, 61:70] = True
-    assert outline_continuation(piece, hand, lab, 6) < 0.05
+    share, length = outline_continuation(piece, hand, lab, 6)
+    assert share < 0.05 and length < 5
 
 
 def test_held_object_verdict_rules():
-    ok = ComponentCues(area_ratio=0.8, grip_share=1.0, skin_share=0.1, continuation=0.0)
-    assert held_object_verdict(ok) is None
-    assert held_object_verdict(ComponentCues(0.8, 0.2, 0.1, 0.0)) == "wrist"
+    def cues(area, grip, skin, length):
+        return ComponentCues(area, grip, skin, continuation=0.0, continuing_length=length)
+
+    assert held_object_verdict(cues(0.8, 1.0, 0.1, 0.0)) is None
+    assert held_object_verdict(cues(0.8, 0.2, 0.1, 0.0)) == "wrist"
     # skin-like but not larger than the hand (cardboard, a beige cup): kept
-    assert held_object_verdict(ComponentCues(1.3, 1.0, 0.95, 0.0)) is None
-    assert held_object_verdict(ComponentCues(2.0, 1.0, 0.7, 0.0)) == "body"
-    assert held_object_verdict(ComponentCues(2.0, 1.0, 0.1, 0.0)) is None  # big, not skin
-    assert held_object_verdict(ComponentCues(0.8, 1.0, 0.1, 0.25)) == "continues"
-    assert held_object_verdict(ComponentCues(0.8, 1.0, 0.1, 0.25), max_continuation=0.3) is None
+    assert held_object_verdict(cues(1.3, 1.0, 0.95, 0.0)) is None
+    assert held_object_verdict(cues(2.0, 1.0, 0.7, 0.0)) == "body"
+    assert held_object_verdict(cues(2.0, 1.0, 0.1, 0.0)) is None  # big, not skin
+    assert held_object_verdict(cues(0.8, 1.0, 0.1, 1.2)) == "continues"
+    assert held_object_verdict(cues(0.8, 1.0, 0.1, 1.2), max_continuing_length=1.5) is None
 
 
 def test_component_cues_of_the_drawn_held_box():
@@ -181,7 +185,8 @@ def test_component_cues_of_the_drawn_held_box():
     along = (xx - KP[0, 0]) * axis[0] + (yy - KP[0, 1]) * axis[1]
     skin_d2 = np.where(hand, 0.0, 100.0)
     cues = component_cues(box, hand, dist, along, lab, skin_d2, 52.0, 4.0, float(hand.sum()))
-    assert cues.grip_share == 1.0 and cues.skin_share == 0.0 and cues.continuation == 0.0
+    assert cues.grip_share == 1.0 and cues.skin_share == 0.0
+    assert cues.continuation == 0.0 and cues.continuing_length == 0.0
     assert cues.area_ratio == pytest.approx(box.sum() / hand.sum())
 
 

@@ -147,14 +147,16 @@ def grip_contact_share(
 
 def outline_continuation(
     component: np.ndarray, hand: np.ndarray, lab: np.ndarray, width: int, tol: float = 10.0
-) -> float:
-    """Share of the band just outside a component whose colour continues the component's.
+) -> tuple[float, float]:
+    """How much of a component's outline its colour continues across: (share, length in px).
 
     For each pixel 2..``width`` px outside the component (and not on or next to the hand), the
     smoothed Lab colour is compared with that of the nearest component pixel; a difference below
-    ``tol`` means the region continues past the outline there. A real object's outline is an
-    image boundary (share near 0); a piece cut out of a larger region (a wall, a shirt, a body)
-    continues along part of its outline. Returns 0 when there is no such band.
+    ``tol`` means the region continues past the outline there. ``share`` is the fraction of such
+    band pixels, ``length`` their count divided by the band's thickness (``width - 1``): the
+    length of outline along which the region continues. A real object's outline is an image
+    boundary (both near 0); a piece cut out of a larger region (a wall, a shirt, a body)
+    continues along part of its outline. Both are 0 when there is no such band.
     """
     dist, labels = cv2.distanceTransformWithLabels(
         (~component).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
@@ -162,12 +164,12 @@ def outline_continuation(
     near_hand = cv2.dilate(hand.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     band = (dist >= 2) & (dist <= width) & ~near_hand
     if not band.any():
-        return 0.0
+        return 0.0, 0.0
     # DIST_LABEL_PIXEL numbers the zero pixels (the component) in raster order from 1
     zy, zx = np.nonzero(component)
     idx = labels[band] - 1
-    diff = np.linalg.norm(lab[band] - lab[zy[idx], zx[idx]], axis=-1)
-    return float((diff < tol).mean())
+    same = np.linalg.norm(lab[band] - lab[zy[idx], zx[idx]], axis=-1) < tol
+    return float(same.mean()), float(same.sum()) / max(1, width - 1)
 
 
 @dataclass(frozen=True)
@@ -179,12 +181,14 @@ class ComponentCues:
         grip_share: share of its hand contact on the fingers/palm side (not the wrist).
         skin_share: share of its pixels matching the hand's own colour model.
         continuation: share of the band outside its outline where its colour continues.
+        continuing_length: length of outline its colour continues across, in palm lengths.
     """
 
     area_ratio: float
     grip_share: float
     skin_share: float
     continuation: float
+    continuing_length: float
 
 
 def component_cues(
@@ -205,11 +209,13 @@ def component_cues(
     distance to the hand's colour model (< 9 is skin) and ``hand_area`` the hand's reference
     area in pixels.
     """
+    share, length = outline_continuation(component, hand, lab, max(3, int(0.15 * palm_len)))
     return ComponentCues(
         area_ratio=float(component.sum()) / max(1.0, hand_area),
         grip_share=grip_contact_share(component, hand_dist, along, palm_len, gap),
         skin_share=float((skin_d2[component] < 9.0).mean()) if component.any() else 0.0,
-        continuation=outline_continuation(component, hand, lab, max(3, int(0.15 * palm_len))),
+        continuation=share,
+        continuing_length=length / palm_len,
     )
 
 
@@ -218,7 +224,7 @@ def held_object_verdict(
     min_grip_share: float = 0.5,
     body_skin_share: float = 0.5,
     body_area_ratio: float = 1.6,
-    max_continuation: float = 0.2,
+    max_continuing_length: float = 0.8,
 ) -> str | None:
     """Why a hand-touching component is not (part of) a held object, or None when it may be.
 
@@ -226,13 +232,16 @@ def held_object_verdict(
     * ``"body"``: skin-coloured (share >= ``body_skin_share``) and larger than
       ``body_area_ratio`` x the hand: another body part such as a face or an arm. Skin-like
       objects (cardboard, beige cups) pass when they are not larger than the hand;
-    * ``"continues"``: its colour continues across >= ``max_continuation`` of its outline.
+    * ``"continues"``: its colour continues across >= ``max_continuing_length`` palm lengths of
+      its outline (a length, not a share: a small, partly segmented piece of an object may
+      continue along a good share of its short outline; a cut-out piece of a wall, a shirt or a
+      body continues along a long one).
     """
     if cues.grip_share < min_grip_share:
         return "wrist"
     if cues.skin_share >= body_skin_share and cues.area_ratio > body_area_ratio:
         return "body"
-    if cues.continuation >= max_continuation:
+    if cues.continuing_length >= max_continuing_length:
         return "continues"
     return None
 
@@ -269,7 +278,7 @@ class ClassicalHOISegmenter:
     max_object_area : float
         Largest kept object, as a multiple of the hand's area (bigger: background, no object).
         The hand's area is that of its mask, floored at ``2 L^2`` (L: palm length).
-    min_grip_share, body_skin_share, body_area_ratio, max_continuation : float
+    min_grip_share, body_skin_share, body_area_ratio, max_continuing_length : float
         Thresholds of :func:`held_object_verdict`.
     iterations : int
         GrabCut iterations.
@@ -292,7 +301,7 @@ class ClassicalHOISegmenter:
         min_grip_share: float = 0.5,
         body_skin_share: float = 0.5,
         body_area_ratio: float = 1.6,
-        max_continuation: float = 0.2,
+        max_continuing_length: float = 0.8,
         iterations: int = 5,
         bg_colour_dist: float = 10.0,
         max_border_share: float = 0.12,
@@ -310,7 +319,7 @@ class ClassicalHOISegmenter:
             "min_grip_share": float(min_grip_share),
             "body_skin_share": float(body_skin_share),
             "body_area_ratio": float(body_area_ratio),
-            "max_continuation": float(max_continuation),
+            "max_continuing_length": float(max_continuing_length),
         }
         self.iterations = int(iterations)
         self.seed = int(seed)
