@@ -120,12 +120,13 @@ def test_no_hand_of_the_no_object_photo_holds_an_object(results):
     rgb, res = results[NO_OBJECT]
     assert len(res["hands"]) == 2
     segmenter = ClassicalHOISegmenter()
-    reasons = []
+    big = []
     for hand in res["hands"]:
         seg = segmenter.segment(rgb, hand)
         assert not seg.has_object and not seg.object_mask.any()
-        reasons += [c["rejected"] for c in seg.meta["components"]]
-    assert reasons and None not in reasons, reasons
+        big += [c for c in seg.meta["components"] if c["area_ratio"] >= segmenter.min_object_area]
+    # the face and the shirt are large touching regions; each is rejected by a cue
+    assert len(big) >= 2 and all(c["rejected"] for c in big), big
 
 
 def test_perceive_raises_no_object_on_the_no_object_photo(results):
