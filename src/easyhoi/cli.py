@@ -260,6 +260,11 @@ def _config_from_args(args):
         "hand": args.hand_backend, "segmenter": args.segmenter, "inpainter": args.inpainter,
         "amodal": args.amodal, "object": args.object_backend,
     }  # fmt: skip
+    for flag, role, name in (("sam_dir", "amodal", "sam"), ("depth_dir", "object", "depth"),
+                             ("diffusion_dir", "inpainter", "diffusion")):  # fmt: skip
+        if getattr(args, flag, None):
+            perception[flag] = getattr(args, flag)
+            perception[role] = perception[role] or name
     perception = {k: v for k, v in perception.items() if v}
     if perception:
         cfg = replace(cfg, perception=replace(cfg.perception, **perception))
@@ -405,6 +410,9 @@ def build_parser() -> argparse.ArgumentParser:
                        ("--inpainter", "inpainter"), ("--amodal", "amodal"),
                        ("--object-backend", "object")):  # fmt: skip
         p.add_argument(flag, default=None, help=f"{role} backend (see `easyhoi doctor`)")
+    p.add_argument("--sam-dir", help="local SAM model folder (uses the 'sam' amodal backend)")
+    p.add_argument("--depth-dir", help="local depth model folder (uses the 'depth' object backend)")
+    p.add_argument("--diffusion-dir", help="local diffusers inpainting pipeline folder")
     p.add_argument("--hand-mask", help="visible hand mask PNG (replaces segmentation)")
     p.add_argument("--object-mask", help="visible held-object mask PNG")
     p.add_argument("--amodal-mask", help="complete (amodal) object mask PNG")

@@ -290,6 +290,12 @@ class PerceptionConfig:
     """Amodal segmenter giving the complete object mask M^_o."""
     object: str = "silhouette"
     """Object reconstructor giving the object mesh."""
+    sam_dir: str | None = None
+    """Local folder of a SAM model (transformers format) for the "sam" amodal backend."""
+    depth_dir: str | None = None
+    """Local folder of a depth-estimation model (transformers) for the "depth" object backend."""
+    diffusion_dir: str | None = None
+    """Local folder of a diffusers inpainting pipeline for the "diffusion" inpainter."""
 
 
 _HAND_MODELS = ("open", "mano")

@@ -110,11 +110,11 @@ def perceive(
         side = pv.hand[0].side
         hands = [HandDetection(np.zeros((0, 2)), None, side, 1.0, meta={"source": "provided"})]
     else:
-        hands = timed("hand detection", create("hand", pc.hand).detect, image)
+        hands = timed("hand detection", _backend(pc, "hand", pc.hand).detect, image)
     report.hands_found = len(hands)
     if not hands:
         raise NoHandError("no hand found in the photo")
-    segmenter = None if masks_given else create("segmenter", pc.segmenter)
+    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter)
     chosen = seg = None
     for i, hand in enumerate(hands):
         if masks_given:
@@ -142,14 +142,15 @@ def perceive(
     else:
         chosen = timed("hand fit", fit_detection, chosen, model, W, H)
 
-    inpainted = timed("inpainting", create("inpainter", pc.inpainter).inpaint, image, seg.hand_mask)
+    inpainter = _backend(pc, "inpainter", pc.inpainter)
+    inpainted = timed("inpainting", inpainter.inpaint, image, seg.hand_mask)
     points, box = amodal_prompts(seg.object_mask, seed=seed)
     if pv.amodal_mask is not None:
         amodal = pv.amodal_mask
     else:
         amodal = timed(
             "amodal segmentation",
-            create("amodal", pc.amodal).segment,
+            _backend(pc, "amodal", pc.amodal).segment,
             inpainted,
             points,
             box,
@@ -160,7 +161,8 @@ def perceive(
         mesh = pv.object_mesh.copy()
         report.notes.append("object mesh provided (imported)")
     else:
-        mesh = timed("object mesh", create("object", pc.object).reconstruct, inpainted, amodal)
+        reconstructor = _backend(pc, "object", pc.object)
+        mesh = timed("object mesh", reconstructor.reconstruct, inpainted, amodal)
     if not mesh.is_watertight:
         mesh, wt = timed("watertight", make_watertight, mesh)
         report.notes.append(f"object mesh repaired ({wt.method})")
@@ -182,6 +184,25 @@ def perceive(
         },
     )
     return inp, report
+
+
+#: Backends that load a large model from a local folder, and the config field naming it.
+_MODEL_DIR_FIELDS = {"sam": "sam_dir", "depth": "depth_dir", "diffusion": "diffusion_dir"}
+
+
+def _backend(pc, role: str, name: str):
+    """Create a backend; adapters of large models get their local model folder from config."""
+    field_name = _MODEL_DIR_FIELDS.get(name)
+    if field_name is None:
+        return create(role, name)
+    model_dir = getattr(pc, field_name)
+    if not model_dir:
+        flag = "--" + field_name.replace("_", "-")
+        raise InvalidInputError(
+            f"the {role} backend {name!r} needs a local model folder: pass {flag} DIR "
+            f"(perception.{field_name}); nothing is downloaded"
+        )
+    return create(role, name, model_dir=model_dir)
 
 
 def _jsonable(v) -> bool:
