@@ -214,6 +214,31 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def cmd_eval(args) -> int:
+    """Metrics of result folders (plausibility, and against ground truth when given)."""
+    import json
+
+    from easyhoi.evaluate import evaluate_result
+
+    rows = []
+    for folder in args.results:
+        res = evaluate_result(
+            folder, args.gt_object, args.gt_hand, align=args.align, simulate=not args.no_sim,
+            sim_steps=args.sim_steps,
+        )  # fmt: skip
+        rows.append(res)
+        _say(args, f"{folder}:")
+        for k, v in res.items():
+            if k not in ("folder", "units"):
+                _say(args, f"  {k}: {json.dumps(v)}")
+    if args.json:
+        from easyhoi.io.atomic import atomic_write_text
+
+        atomic_write_text(Path(args.json), json.dumps(rows, indent=2))
+        _say(args, f"wrote {args.json}")
+    return 0
+
+
 def cmd_doctor(args) -> int:
     """Versions, available backends and what is missing."""
     import importlib
@@ -488,6 +513,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="largest accepted photo in MB (default 20)")  # fmt: skip
     _add_common(p)
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("eval", help="metrics of result folders (plausibility, vs ground truth)")
+    p.add_argument("results", nargs="+", metavar="RESULT_DIR", help="folders from reconstruct")
+    p.add_argument("--gt-object", help="ground-truth object mesh (metres; aligned before C.D.)")
+    p.add_argument("--gt-hand", help="ground-truth hand mesh, same hand model (for MPVPE)")
+    p.add_argument("--align", default="translation_scale",
+                   choices=("translation_scale", "rigid", "none"),
+                   help="object alignment before C.D./F-score (default: MOHO/EasyHOI)")  # fmt: skip
+    p.add_argument("--no-sim", action="store_true", help="skip the simulation displacement")
+    p.add_argument("--sim-steps", type=int, default=35, help="simulation steps (paper text: 1000)")
+    p.add_argument("--json", help="also write the metrics to this JSON file")
+    _add_common(p)
+    p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("doctor", help="versions, backends and what is missing")
     _add_common(p)
