@@ -186,3 +186,56 @@ def test_bad_input_raises_named_errors(sphere_grid):
         SDFGrid(torch.zeros(4, 4, 4), torch.ones(3), torch.zeros(3), 4)
     with pytest.raises(InvalidInputError, match="NaN"):
         exact_signed_distance(trimesh.creation.box(), np.full((2, 3), np.nan))
+
+
+def _banded_case(name: str, shared_data) -> trimesh.Trimesh:
+    if name == "sphere":
+        return trimesh.creation.icosphere(subdivisions=4, radius=0.5)
+    if name == "annulus":  # non-convex, with a thin wall and a hole through it
+        return trimesh.creation.annulus(r_min=0.3, r_max=0.4, height=0.5, sections=64)
+    mesh = trimesh.load(shared_data / "objects" / "plastic_banana.obj", force="mesh")
+    return trimesh.Trimesh(mesh.vertices, mesh.faces, process=True)
+
+
+@pytest.mark.parametrize("name", ["sphere", "annulus", "banana"])
+@pytest.mark.parametrize("band", [0.0, 3.0])
+def test_banded_build_is_exact_near_the_surface_and_bounded_elsewhere(name, band, shared_data):
+    from easyhoi.geometry.sdf import _COARSE_STEP
+
+    mesh = _banded_case(name, shared_data)
+    full = build_sdf_grid(mesh, resolution=41, dtype=torch.float64).values.numpy()
+    fast = build_sdf_grid(mesh, resolution=41, dtype=torch.float64, exact_band=band)
+    got = fast.values.numpy()
+    voxel = float(fast.voxel_size.max())
+    near = np.abs(full) <= band * voxel
+    assert_close(got[near], full[near], atol=1e-9)
+    # every coarse node is exact too
+    c = np.r_[np.arange(0, 41, _COARSE_STEP), 40]
+    assert_close(got[np.ix_(c, c, c)], full[np.ix_(c, c, c)], atol=1e-9)
+    # the documented bound: one coarse cell diagonal; the sign is exact everywhere
+    err = np.abs(got - full)
+    assert err.max() <= _COARSE_STEP * np.sqrt(3.0) * voxel
+    assert np.array_equal(got < 0, full < 0)
+    assert np.array_equal(got > 0, full > 0)
+    if band == 3.0:
+        assert (~near).mean() > 0.3  # the band is a small part of the grid: the test bites
+
+
+def test_banded_per_node_error_bound_holds():
+    from easyhoi.geometry.sdf import _banded_values, _pseudo_normals
+
+    mesh = trimesh.creation.annulus(r_min=0.3, r_max=0.4, height=0.5, sections=64)
+    axes = [np.linspace(-0.5, 0.5, 33)] * 3
+    v, f = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
+    values, bound = _banded_values(axes, 1.0 / 32, 2.0 / 32, v, f, _pseudo_normals(v, f))
+    nodes = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    truth = exact_signed_distance(mesh, nodes).reshape(values.shape)
+    assert (np.abs(values - truth) <= bound + 1e-12).all()
+    assert (bound[np.abs(truth) <= 2.0 / 32] == 0).all()
+    assert bound.max() > 0
+
+
+def test_banded_build_rejects_a_bad_band():
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(InvalidInputError, match="exact_band"):
+            build_sdf_grid(trimesh.creation.box(), resolution=16, exact_band=bad)
