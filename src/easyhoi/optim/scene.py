@@ -61,6 +61,10 @@ SILHOUETTE_SIGMA = 0.1
 #: Padding of the object SDF grid beyond the mesh, as a fraction of its largest side.
 SDF_PADDING = 0.3
 
+#: Voxels around the surface where the SDF grid is exact (penetration and contact terms act
+#: there); farther nodes carry exact signs and bounded values, and the build is ~5x faster.
+SDF_EXACT_BAND = 4.0
+
 
 @dataclass
 class Scene:
@@ -161,8 +165,9 @@ class Scene:
             from easyhoi.geometry.sdf import build_sdf_grid
 
             self._sdf_cache[resolution] = build_sdf_grid(
-                self.watertight, resolution, padding=SDF_PADDING, dtype=self.dtype
-            )
+                self.watertight, resolution, padding=SDF_PADDING, dtype=self.dtype,
+                exact_band=SDF_EXACT_BAND,
+            )  # fmt: skip
         return self._sdf_cache[resolution]
 
     def sdf(self, points: torch.Tensor, resolution: int) -> torch.Tensor:

@@ -138,7 +138,9 @@ def analyse_object(mesh: trimesh.Trimesh, resolution: int = 40, seed: int = 0) -
     from easyhoi.geometry.sampling import sample_surface
 
     extent = float(np.max(mesh.extents))
-    grid = build_sdf_grid(mesh, resolution=resolution, padding=0.035 / extent, dtype=torch.float64)
+    grid = build_sdf_grid(
+        mesh, resolution=resolution, padding=0.035 / extent, dtype=torch.float64, exact_band=4.0
+    )
     pts, _, nrm = sample_surface(mesh, 3000, seed=seed)
     centre = pts.mean(axis=0)
     _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
