@@ -58,7 +58,7 @@ class FitConfig:
     robust_scale_px: float = 20.0
     weight_2d: float = 1.0
     pose_prior: float = 1e-5
-    shape_prior: float = 1e-5
+    shape_prior: float = 1e-2
     fit_shape: bool = True
     anatomy_weight: float = 1.0
 
