@@ -1,4 +1,11 @@
-"""easyhoi: single-image 3D hand-object reconstruction on a CPU (the EasyHOI method)."""
+"""easyhoi: single-image 3D hand-object reconstruction on a CPU (the EasyHOI method).
+
+The small public API (heavier names are imported on first use)::
+
+    from easyhoi import reconstruct_photo, optimize, HOIInput, HOIResult, get_preset
+    rec = reconstruct_photo("photo.jpg", "results/")      # photo -> result folder
+    result = optimize(hoi_input, get_preset("fast"))      # HOIInput -> HOIResult
+"""
 
 from easyhoi.errors import (
     BackendError,
@@ -10,6 +17,31 @@ from easyhoi.structures import Camera, HandOutput, HandParams
 
 __version__ = "0.1.0"
 
+_LAZY = {
+    "reconstruct_photo": ("easyhoi.pipeline", "reconstruct_photo"),
+    "optimize": ("easyhoi.optim.run", "optimize"),
+    "HOIInput": ("easyhoi.hoi", "HOIInput"),
+    "HOIResult": ("easyhoi.hoi", "HOIResult"),
+    "get_preset": ("easyhoi.config", "get_preset"),
+    "EasyHOIConfig": ("easyhoi.config", "EasyHOIConfig"),
+    "load_hand_model": ("easyhoi.hand", "load_hand_model"),
+    "save_hoi_input": ("easyhoi.io.hoi_io", "save_hoi_input"),
+    "load_hoi_input": ("easyhoi.io.hoi_io", "load_hoi_input"),
+    "save_hoi_result": ("easyhoi.io.hoi_io", "save_hoi_result"),
+    "load_hoi_result": ("easyhoi.io.hoi_io", "load_hoi_result"),
+    "evaluate_result": ("easyhoi.evaluate", "evaluate_result"),
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        module, attr = _LAZY[name]
+        return getattr(importlib.import_module(module), attr)
+    raise AttributeError(f"module 'easyhoi' has no attribute {name!r}")
+
+
 __all__ = [
     "BackendError",
     "Camera",
@@ -19,4 +51,5 @@ __all__ = [
     "InvalidInputError",
     "MissingDependencyError",
     "__version__",
+    *_LAZY,
 ]
