@@ -2,6 +2,7 @@ import pytest
 import trimesh
 
 from easyhoi.cli import main
+from easyhoi.errors import InvalidInputError
 
 
 def test_demo_hand_writes_meshes_and_picture(tmp_path, capsys):
@@ -63,3 +64,29 @@ def test_example_reconstructs_a_synthetic_photo_end_to_end(tmp_path, capsys):
     assert "penetration_depth_cm" in text and "hand_mask_iou" in text
     out = capsys.readouterr().out
     assert "results:" in out and "report.html" in out
+
+
+def test_imported_masks_of_a_non_square_photo_and_of_the_full_size_photo(tmp_path):
+    import numpy as np
+    from PIL import Image
+
+    from easyhoi.cli import _provided_from_args, build_parser
+
+    photo = tmp_path / "wide.png"
+    Image.fromarray(np.full((1000, 2000, 3), 128, np.uint8)).save(photo)  # downscaled to 1600
+    full = np.zeros((1000, 2000), np.uint8)
+    full[400:600, 800:1200] = 255
+    Image.fromarray(full).save(tmp_path / "full.png")
+    small = np.zeros((800, 1600), np.uint8)
+    small[320:480, 640:960] = 255
+    Image.fromarray(small).save(tmp_path / "small.png")
+    args = build_parser().parse_args(["reconstruct", str(photo), "--out", str(tmp_path / "o"),
+                                      "--hand-mask", str(tmp_path / "full.png"),
+                                      "--object-mask", str(tmp_path / "small.png")])  # fmt: skip
+    given = _provided_from_args(args)
+    assert given.hand_mask.shape == given.object_mask.shape == (800, 1600)
+    assert given.hand_mask.sum() == given.object_mask.sum() == 160 * 320
+    Image.fromarray(small[:700]).save(tmp_path / "bad.png")
+    args.hand_mask = str(tmp_path / "bad.png")
+    with pytest.raises(InvalidInputError, match="is 700x1600 but the image is 800x1600"):
+        _provided_from_args(args)

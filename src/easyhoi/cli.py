@@ -318,14 +318,28 @@ def _provided_from_args(args):
     from easyhoi.io.image import load_image, load_mask
     from easyhoi.perception.chain import Provided
 
-    size = None
+    size = original = None
     if args.images:
         img = load_image(args.images[0])
         size = img.rgb.shape[:2]
+        original = (img.original_size[1], img.original_size[0])  # (H, W) before downscaling
     kw = {}
     for k in ("hand_mask", "object_mask", "amodal_mask"):
         if getattr(args, k):
-            kw[k] = load_mask(getattr(args, k), size=size)
+            mask = load_mask(getattr(args, k))
+            if size is not None and mask.shape != size and mask.shape == original:
+                # a mask of the full-size photo: follow the photo's downscaling
+                import cv2
+
+                small = cv2.resize(mask.astype("uint8"), (size[1], size[0]),
+                                   interpolation=cv2.INTER_NEAREST)  # fmt: skip
+                mask = small.astype(bool)
+            if size is not None and mask.shape != size:
+                raise InvalidInputError(
+                    f"{k.replace('_', ' ')} is {mask.shape[0]}x{mask.shape[1]} but the image is "
+                    f"{size[0]}x{size[1]} (height x width)"
+                )
+            kw[k] = mask
     if args.object_mesh:
         from easyhoi.geometry.mesh import load_mesh
 
