@@ -28,3 +28,11 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"shared test data not found at {SHARED_DATA}")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def hand():
+    """The built-in open hand model (shared; models are stateless layers)."""
+    from easyhoi.hand import load_hand_model
+
+    return load_hand_model("open")

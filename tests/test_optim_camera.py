@@ -9,7 +9,6 @@ import pytest
 import torch
 
 from easyhoi.config import get_preset
-from easyhoi.hand import load_hand_model
 from easyhoi.optim.camera import fit_box, fit_camera, initial_camera
 from easyhoi.optim.losses import sinkhorn_mask_loss
 from easyhoi.optim.scene import Scene, hard_iou
@@ -19,20 +18,6 @@ from easyhoi.structures import Camera
 from tests.optim_scenes import make_scene
 
 SIZE = 96
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """One intra-op thread: these small problems run several times slower oversubscribed."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
-
-
-@pytest.fixture(scope="module")
-def hand():
-    return load_hand_model("open")
 
 
 def _setup(kind, hand):

@@ -8,7 +8,6 @@ import pytest
 import torch
 
 from easyhoi.config import get_preset
-from easyhoi.hand import load_hand_model
 from easyhoi.optim.refine import fit_refine, refine_terms
 from easyhoi.optim.run import plausibility
 from easyhoi.optim.scene import Scene
@@ -16,20 +15,6 @@ from easyhoi.structures import HandParams
 from tests.optim_scenes import make_scene
 
 SIZE = 96
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """One intra-op thread: these small problems run several times slower oversubscribed."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
-
-
-@pytest.fixture(scope="module")
-def hand():
-    return load_hand_model("open")
 
 
 @pytest.fixture(scope="module")

@@ -10,27 +10,12 @@ import torch
 
 from easyhoi.config import get_preset, with_overrides
 from easyhoi.errors import OptimizationError
-from easyhoi.hand import load_hand_model
 from easyhoi.hoi import HOIResult
 from easyhoi.optim.run import optimize
 from tests.optim_scenes import make_scene
 
 SIZE = 96
 NOISE = dict(rot_noise=0.05, trans_noise=0.02, depth_noise=0.05, pose_noise=0.03)
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """One intra-op thread: these small problems run several times slower oversubscribed."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
-
-
-@pytest.fixture(scope="module")
-def hand():
-    return load_hand_model("open")
 
 
 @pytest.fixture(scope="module")
