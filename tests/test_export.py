@@ -135,3 +135,25 @@ def test_exports_reject_non_results(tmp_path):
         export_glb(object(), tmp_path / "a.glb")
     with pytest.raises(InvalidInputError):
         result_json({"hand": 1})
+
+
+def test_pictures_of_a_large_photo_are_drawn_at_picture_size():
+    import torch
+
+    from easyhoi.io.result_folder import picture_scale
+    from tests.hoi_scene import make_input
+
+    big_h, big_w = 1200, 1600
+    result = make_result(height=big_h, width=big_w)
+    inp = make_input(result, height=big_h, width=big_w)
+    r2, i2 = picture_scale(result, inp, max_side=800)
+    assert i2.image.shape == (600, 800, 3) and i2.hand_mask.shape == (600, 800)
+    assert (r2.camera.height, r2.camera.width) == (600, 800)
+    assert all(s.camera is None or s.camera.width == 800 for s in r2.stages)
+    pts = torch.tensor(result.object_mesh.vertices[:5], dtype=r2.camera.K.dtype)
+    uv_big, _ = result.camera.project(pts)
+    uv_small, _ = r2.camera.project(pts)
+    assert torch.allclose(uv_small, uv_big * 0.5, atol=1e-4)
+    assert abs(int(i2.hand_mask.sum()) - int(inp.hand_mask.sum()) / 4) < 0.05 * inp.hand_mask.sum()
+    r3, i3 = picture_scale(result, inp, max_side=2000)
+    assert r3 is result and i3 is inp

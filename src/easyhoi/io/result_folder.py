@@ -64,10 +64,54 @@ def _write_all(result: HOIResult, inp: HOIInput, folder: Path, title: str) -> No
     export_ply(result.hand_mesh().apply_scale(result.metric_scale), folder / "hand.ply")
     export_ply(result.object_mesh_metric(), folder / "object.ply")
     write_result_json(result, folder / "result.json")
-    pictures = render_pictures(result, inp)
+    pictures = render_pictures(*picture_scale(result, inp))
     for name, data in pictures.items():
         atomic_write_bytes(folder / name, data)
     write_report(result, inp, folder, images=pictures, title=title)
+
+
+#: Pictures are drawn at most this many pixels on the photo's longer side (drawing with the
+#: CPU rasterizer costs time in proportion to the pixel count; the photo itself keeps its size).
+PICTURE_MAX_SIDE = 1024
+
+
+def picture_scale(
+    result: HOIResult, inp: HOIInput, max_side: int = PICTURE_MAX_SIDE
+) -> tuple[HOIResult, HOIInput]:
+    """``result`` and ``inp`` at picture size: photo, masks and every camera downscaled.
+
+    Returns the arguments unchanged when the photo's longer side is at most ``max_side``.
+    """
+    from dataclasses import replace
+
+    import cv2
+
+    H, W = inp.image.shape[:2]
+    if max(H, W) <= max_side:
+        return result, inp
+    s = max_side / max(H, W)
+    w, h = max(1, round(W * s)), max(1, round(H * s))
+
+    def img(a):
+        return None if a is None else cv2.resize(a, (w, h), interpolation=cv2.INTER_AREA)
+
+    def mask(m):
+        if m is None:
+            return None
+        small = cv2.resize(m.astype("uint8"), (w, h), interpolation=cv2.INTER_NEAREST)
+        return small.astype(bool)
+
+    def cam(c):
+        return None if c is None else c.resized(w, h)
+
+    small_inp = replace(
+        inp, image=img(inp.image), hand_mask=mask(inp.hand_mask),
+        object_mask=mask(inp.object_mask), amodal_mask=mask(inp.amodal_mask),
+        inpainted_image=img(inp.inpainted_image),
+        complete_hand_mask=mask(inp.complete_hand_mask), hand_camera=cam(inp.hand_camera),
+    )  # fmt: skip
+    stages = tuple(replace(st, camera=cam(st.camera)) for st in result.stages)
+    return replace(result, camera=cam(result.camera), stages=stages), small_inp
 
 
 def write_result_folder(
