@@ -73,21 +73,9 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 def check_mesh(mesh: Any, name: str = "object mesh") -> None:
     """Raise unless ``mesh`` is a ``trimesh.Trimesh`` with finite vertices and valid faces."""
-    import trimesh
+    from easyhoi.geometry.mesh import validate_mesh
 
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise InvalidInputError(f"{name} must be a trimesh.Trimesh, got {type(mesh).__name__}")
-    v = np.asarray(mesh.vertices)
-    f = np.asarray(mesh.faces)
-    if v.shape[0] == 0 or f.shape[0] == 0:
-        raise InvalidInputError(f"{name} is empty ({v.shape[0]} vertices, {f.shape[0]} faces)")
-    if not np.isfinite(v).all():
-        raise InvalidInputError(f"{name} has NaN or infinite vertex coordinates")
-    if f.min() < 0 or f.max() >= v.shape[0]:
-        raise InvalidInputError(
-            f"{name} faces index vertices in [{f.min()}, {f.max()}] "
-            f"but there are only {v.shape[0]} vertices"
-        )
+    validate_mesh(mesh, name)
 
 
 def _check_json(meta: Any, name: str) -> dict:

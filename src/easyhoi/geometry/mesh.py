@@ -62,6 +62,28 @@ def load_mesh(path: str | Path, process: bool = False) -> trimesh.Trimesh:
     return loaded
 
 
+def validate_mesh_arrays(v: np.ndarray, f: np.ndarray, name: str = "mesh") -> None:
+    """Raise unless ``v`` (V, 3) and ``f`` (F, 3) form a non-empty, finite, non-degenerate mesh.
+
+    The one place where easyhoi checks mesh arrays (:func:`validate_mesh`, the metrics and
+    :class:`~easyhoi.hoi.HOIInput` all call it).
+    """
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise InvalidInputError(f"{name} vertices must have shape (V, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise InvalidInputError(f"{name} faces must have shape (F, 3), got {f.shape}")
+    if len(v) == 0 or len(f) == 0:
+        raise InvalidInputError(
+            f"{name} is empty: expected at least one face, got {len(v)} vertices, {len(f)} faces"
+        )
+    if not np.isfinite(v).all():
+        bad = int((~np.isfinite(v)).any(axis=1).sum())
+        raise InvalidInputError(f"{name} has {bad} vertices with NaN or infinite coordinates")
+    check_faces(f, len(v), f"{name} faces")
+    if float(np.ptp(v[np.unique(f)], axis=0).max()) <= 0.0:
+        raise InvalidInputError(f"{name} is degenerate: all its vertices are the same point")
+
+
 def validate_mesh(
     mesh: trimesh.Trimesh, name: str = "mesh", require_watertight: bool = False
 ) -> None:
@@ -78,26 +100,7 @@ def validate_mesh(
     """
     if not isinstance(mesh, trimesh.Trimesh):
         raise InvalidInputError(f"{name} must be a trimesh.Trimesh, got {type(mesh).__name__}")
-    v = np.asarray(mesh.vertices)
-    f = np.asarray(mesh.faces)
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise InvalidInputError(f"{name} vertices must have shape (V, 3), got {v.shape}")
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise InvalidInputError(f"{name} faces must have shape (F, 3), got {f.shape}")
-    if len(v) == 0 or len(f) == 0:
-        raise InvalidInputError(
-            f"{name} is empty: expected at least one face, got {len(v)} vertices, {len(f)} faces"
-        )
-    if not np.isfinite(v).all():
-        bad = int((~np.isfinite(v)).any(axis=1).sum())
-        raise InvalidInputError(f"{name} has {bad} vertices with NaN or infinite coordinates")
-    lo, hi = int(f.min()), int(f.max())
-    if lo < 0 or hi >= len(v):
-        raise InvalidInputError(
-            f"{name} faces index vertices in [{lo}, {hi}] but there are only {len(v)} vertices"
-        )
-    if float(np.ptp(v[np.unique(f)], axis=0).max()) <= 0.0:
-        raise InvalidInputError(f"{name} is degenerate: all its vertices are the same point")
+    validate_mesh_arrays(np.asarray(mesh.vertices), np.asarray(mesh.faces), name)
     if require_watertight and not mesh.is_watertight:
         raise InvalidInputError(
             f"{name} must be watertight (closed, every edge shared by two faces); it is not: "

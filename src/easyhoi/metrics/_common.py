@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from easyhoi.checks import check_faces
 from easyhoi.errors import InvalidInputError
+from easyhoi.geometry.mesh import validate_mesh_arrays
 
 #: metres -> centimetres
 M_TO_CM = 100.0
@@ -71,18 +71,7 @@ def as_mesh(mesh, name: str, watertight: bool = False) -> trimesh.Trimesh:
             f"{name} must be a trimesh.Trimesh or a (vertices, faces) pair, "
             f"got {type(mesh).__name__}"
         )
-    if vertices.ndim != 2 or vertices.shape[1] != 3:
-        raise InvalidInputError(f"{name} vertices must have shape (V, 3), got {vertices.shape}")
-    if faces.ndim != 2 or faces.shape[1] != 3:
-        raise InvalidInputError(f"{name} faces must have shape (F, 3), got {faces.shape}")
-    if len(vertices) == 0 or len(faces) == 0:
-        raise InvalidInputError(
-            f"{name} is empty: expected at least 1 face, got {len(vertices)} vertices and "
-            f"{len(faces)} faces"
-        )
-    if not np.isfinite(vertices).all():
-        raise InvalidInputError(f"{name} vertices contain NaN or infinite values")
-    check_faces(faces, len(vertices), f"{name} faces")
+    validate_mesh_arrays(vertices, faces, name)
     out = trimesh.Trimesh(vertices, faces, process=False)
     area = float(out.area)
     if not area > 0:
