@@ -81,7 +81,7 @@ def test_peel_matches_dense_reference_and_zbuffer():
     z1 = rasterize(v, f, cam)
     assert z1.depth.shape == (24, 32, 1)
     assert torch.equal(z1.face_ids[..., 0], fr.face_ids[..., 0])
-    assert_close(depth_map(v, f, cam), fr.depth[..., 0], atol=0)
+    assert_close(depth_map(v, f, cam), fr.depth[..., 0], atol=1e-12)  # rounding only
 
 
 def test_shared_edges_counted_once_and_plane_depth():

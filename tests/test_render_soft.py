@@ -18,6 +18,15 @@ from easyhoi.structures import Camera
 from tests.helpers import assert_close
 
 F64 = torch.float64
+BACKENDS = ["numba", "torch"]
+
+
+@pytest.fixture(params=BACKENDS)
+def backend(request):
+    """Run a test with each kernel backend, restoring the automatic choice afterwards."""
+    soft.set_backend(request.param)
+    yield request.param
+    soft.set_backend("auto")
 
 
 def _sphere(sub=2, radius=1.0, dtype=F64):
@@ -30,7 +39,7 @@ def _cam(w=40, h=32, focal=30.0, dtype=F64):
     return Camera.look_at((0.4, 0.3, -3.0), (0, 0, 0), focal=focal, width=w, height=h, dtype=dtype)
 
 
-def test_culled_matches_dense_value_and_gradient():
+def test_culled_matches_dense_value_and_gradient(backend):
     v, f = _sphere()
     cam = _cam()
     w = torch.randn(cam.height, cam.width, dtype=F64)
@@ -48,7 +57,7 @@ def test_culled_matches_dense_value_and_gradient():
         assert_close(ga, gb, atol=1e-5)
 
 
-def test_culled_matches_dense_camera_gradient_float32():
+def test_culled_matches_dense_camera_gradient_float32(backend):
     v, f = _sphere(dtype=torch.float32)
     K = torch.tensor([[30.0, 0, 20], [0, 32.0, 16], [0, 0, 1]], requires_grad=True)
     t = torch.tensor([0.1, -0.05, 3.0], requires_grad=True)
@@ -63,7 +72,7 @@ def test_culled_matches_dense_camera_gradient_float32():
         assert_close(ga, gb, atol=1e-3, rtol=1e-4)  # float32 sums over ~1k pixels
 
 
-def test_gradcheck_vertices_and_camera():
+def test_gradcheck_vertices_and_camera(backend):
     v = torch.tensor(
         [[0.0, 0.0, 0.3], [0.9, 0.1, 0.0], [0.1, 0.8, 0.1], [-0.6, -0.5, 0.2]], dtype=F64
     )
@@ -79,7 +88,7 @@ def test_gradcheck_vertices_and_camera():
     assert torch.autograd.gradcheck(render, args, eps=1e-6, atol=1e-6)
 
 
-def test_single_edge_closed_form():
+def test_single_edge_closed_form(backend):
     # a huge triangle with a vertical edge at u = 20: pixels left of it see sigmoid(-d^2/sigma)
     cam = Camera.from_focal(10.0, 40, 8, dtype=F64)
     z = 1.0
@@ -93,7 +102,7 @@ def test_single_edge_closed_form():
     assert_close(out[4], expected, atol=1e-8)  # culled terms are below cull_eps = 1e-8
 
 
-def test_batch_orientation_and_log_visibility():
+def test_batch_orientation_and_log_visibility(backend):
     v, f = _sphere()
     cam = _cam()
     vb = torch.stack([v, v * 0.5 + 0.2])
@@ -105,6 +114,36 @@ def test_batch_orientation_and_log_visibility():
     assert torch.isfinite(logs).all()
     assert_close(sil, -torch.expm1(logs), atol=1e-12)
     assert_close(soft_silhouette(v, f, cam), soft_silhouette(v, f, cam), atol=0)  # deterministic
+
+
+def test_backends_agree_on_batches_and_clipped_faces():
+    # a batch of two meshes, one partly outside the image (faces clipped by the borders)
+    v, f = _sphere(dtype=F64)
+    vb = torch.stack([v, v * 1.3 + torch.tensor([1.2, 0.4, 0.0], dtype=F64)])
+    cam = _cam()
+    w = torch.randn(2, cam.height, cam.width, dtype=F64)
+    res = {}
+    try:
+        for name in BACKENDS:
+            soft.set_backend(name)
+            vv = vb.clone().requires_grad_(True)
+            sil, logs = soft_log_visibility(vv, f, cam, sigma=0.7)
+            (g,) = torch.autograd.grad((sil * w).sum() + 1e-3 * logs.sum(), vv)
+            res[name] = (sil, logs, g)
+    finally:
+        soft.set_backend("auto")
+    a, b = res["numba"], res["torch"]
+    assert float(a[0][1, :, -1].max()) > 0.5  # the second mesh reaches the right border
+    assert_close(a[0], b[0], atol=1e-7)
+    assert_close(a[1], b[1], atol=1e-6)  # the numba kernel skips terms below cull_eps exactly
+    assert float(a[2].abs().max()) > 1.0
+    assert_close(a[2], b[2], atol=2e-5)  # skipped terms: each below cull_eps / sigma * radius
+
+
+def test_backend_switch_rejects_unknown_names():
+    with pytest.raises(InvalidInputError, match="backend"):
+        soft.set_backend("cuda")
+    assert soft.get_backend() in ("numba", "torch")
 
 
 def test_culling_evaluates_few_pairs():
@@ -188,13 +227,13 @@ def test_compiled_kernels_match_eager():
     w = torch.randn(cam.height, cam.width)
     results = []
     try:
-        for enabled in (False, True):
-            soft.set_compile(enabled)
+        for name in ("torch", "compile"):
+            soft.set_backend(name)
             vv = v.clone().requires_grad_(True)
             out = soft_silhouette(vv, f, cam)
             (g,) = torch.autograd.grad((out * w).sum(), vv)
             results.append((out, g))
     finally:
-        soft.set_compile(False)
+        soft.set_backend("auto")
     assert_close(results[1][0], results[0][0], atol=1e-5)
     assert_close(results[1][1], results[0][1], atol=1e-3, rtol=1e-4)

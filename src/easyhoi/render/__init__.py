@@ -7,6 +7,8 @@ from easyhoi.render.composite import HOIMasks, hoi_masks
 from easyhoi.render.raster import Fragments, depth_map, peel, peel_pixels, rasterize
 from easyhoi.render.soft import (
     cull_margin,
+    get_backend,
+    set_backend,
     set_compile,
     sigma_from_ndc,
     soft_log_visibility,
@@ -18,10 +20,12 @@ __all__ = [
     "HOIMasks",
     "cull_margin",
     "depth_map",
+    "get_backend",
     "hoi_masks",
     "peel",
     "peel_pixels",
     "rasterize",
+    "set_backend",
     "set_compile",
     "sigma_from_ndc",
     "soft_log_visibility",

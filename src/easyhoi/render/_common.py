@@ -15,6 +15,31 @@ from easyhoi.checks import check_faces, check_finite
 from easyhoi.errors import InvalidInputError
 from easyhoi.structures import Camera
 
+#: Kernel backend of the soft silhouette and the z-buffer: "auto" (numba when importable, else
+#: torch), "numba", "torch" (eager) or "compile" (torch.compile); set by
+#: :func:`easyhoi.render.soft.set_backend`.
+BACKEND = {"name": "auto"}
+_NUMBA: dict[str, object] = {}
+
+
+def numba_kernels():
+    """The compiled-kernel module, or None when numba is missing or broken (torch is used)."""
+    if "mod" not in _NUMBA:
+        try:
+            from easyhoi.render import _numba_kernels as mod
+        except Exception:  # noqa: BLE001 - any import failure falls back to torch
+            mod = None
+        _NUMBA["mod"] = mod
+    return _NUMBA["mod"]
+
+
+def get_backend() -> str:
+    """The soft-silhouette backend in use now (``auto`` resolved to ``numba`` or ``torch``)."""
+    name = BACKEND["name"]
+    if name == "auto":
+        return "numba" if numba_kernels() is not None else "torch"
+    return name
+
 
 def as_verts(verts, name: str = "verts") -> tuple[torch.Tensor, bool]:
     """Validate vertices; returns ``(verts (B, V, 3), batched)``; floats kept, others -> float32."""

@@ -27,6 +27,8 @@ from easyhoi.render._common import (
     as_verts,
     bbox_pairs,
     check_positive,
+    get_backend,
+    numba_kernels,
     pixel_uv,
     project_faces,
 )
@@ -277,13 +279,18 @@ def depth_map(verts, faces, camera: Camera, near: float = 1e-3) -> torch.Tensor:
 
     Returns:
         (H, W) camera z of the nearest surface, ``inf`` where the ray misses. Equals
-        ``rasterize(...).depth[..., 0]``.
+        ``rasterize(...).depth[..., 0]`` up to rounding (the numba kernel sums in float64).
     """
     v, f, camera, near = _prepare(verts, faces, camera, near, 1)
     H, W = camera.height, camera.width
     out = torch.full((H * W,), float("inf"), dtype=camera.K.dtype, device=camera.K.device)
     if v.shape[1] and f.shape[0]:
         tri_uv, tri_z, _ = project_faces(v, f, camera, near)
+        if get_backend() == "numba" and out.device.type == "cpu":
+            kernels = numba_kernels()
+            tri = tri_uv.reshape(-1, 6).contiguous().numpy()
+            kernels.zbuffer(tri, tri_z.contiguous().numpy(), H, W, out.numpy())
+            return out.view(H, W)
         face, pix = bbox_pairs(tri_uv, H, W, 0.0)
         p = pixel_uv(pix, W, H, tri_uv.dtype)
         tri = tri_uv[face]

@@ -30,10 +30,13 @@ import torch
 
 from easyhoi.errors import InvalidInputError
 from easyhoi.render._common import (
+    BACKEND,
     as_camera,
     as_faces,
     as_verts,
     check_positive,
+    get_backend,
+    numba_kernels,
     project_faces,
 )
 from easyhoi.structures import Camera
@@ -164,23 +167,40 @@ def _fused_backward(grad_out, face, pix, coef, rx, ry, t, e, num_faces: int):
 
 
 _COMPILED: dict[str, object] = {}
+BACKENDS = ("auto", "numba", "torch", "compile")
 
 
-def set_compile(enabled: bool) -> None:
-    """Run the per-pair forward and backward through ``torch.compile`` (inductor), or eager.
+def set_backend(name: str) -> None:
+    """Choose the soft-silhouette kernel: ``auto`` (numba if importable, else torch), ``numba``,
+    ``torch`` (eager) or ``compile`` (``torch.compile`` of the torch kernel, see
+    :func:`set_compile`). Values and gradients agree to float rounding across backends.
 
-    Off by default: the first call in a process pays a compilation (10-60 s cold, a few
-    seconds once inductor's on-disk cache is warm) that only long optimizations recover;
-    after it one iteration is several times faster (see docs/rendering.md). Pair counts change
-    at every call, so the functions are compiled with ``dynamic=True`` and do not recompile
-    for new counts. If compilation fails (no C++ compiler, ...) a warning is issued and eager
-    code is used.
+    Raises:
+        InvalidInputError: unknown name, or ``numba`` requested but numba is not importable.
     """
-    if enabled:
+    if name not in BACKENDS:
+        raise InvalidInputError(f"unknown soft renderer backend {name!r}; use one of {BACKENDS}")
+    if name == "numba" and numba_kernels() is None:
+        raise InvalidInputError("the numba backend needs the numba package (pip install numba)")
+    BACKEND["name"] = name
+    if name == "compile":
         _COMPILED.setdefault("forward", torch.compile(_fused_forward, dynamic=True))
         _COMPILED.setdefault("backward", torch.compile(_fused_backward, dynamic=True))
     else:
-        _COMPILED.clear()
+        _COMPILED.pop("forward", None)
+        _COMPILED.pop("backward", None)
+
+
+def set_compile(enabled: bool) -> None:
+    """Run the torch per-pair forward and backward through ``torch.compile`` (inductor).
+
+    ``set_compile(True)`` is ``set_backend("compile")``; ``set_compile(False)`` returns to
+    ``auto``. The first call in a process pays a compilation (10-60 s cold, a few seconds once
+    inductor's on-disk cache is warm). Pair counts change at every call, so the functions are
+    compiled with ``dynamic=True`` and do not recompile for new counts. If compilation fails
+    (no C++ compiler, ...) a warning is issued and eager code is used.
+    """
+    set_backend("compile" if enabled else "auto")
 
 
 def _call(name: str, eager, *args):
@@ -192,7 +212,8 @@ def _call(name: str, eager, *args):
             import warnings
 
             warnings.warn(f"torch.compile failed ({exc}); using eager kernels", stacklevel=3)
-            _COMPILED.clear()
+            _COMPILED.pop("forward", None)
+            _COMPILED.pop("backward", None)
     return eager(*args)
 
 
@@ -213,6 +234,32 @@ class _SoftLogSum(torch.autograd.Function):
         saved = ctx.saved_tensors
         grad = _call("backward", _fused_backward, grad_out.contiguous(), *saved, ctx.num_faces)
         return grad.view(-1, 3, 2), None, None, None, None, None
+
+
+class _SoftLogSumNumba(torch.autograd.Function):
+    """Same as :class:`_SoftLogSum` with the numba kernels (pairs recomputed in backward)."""
+
+    @staticmethod
+    def forward(ctx, tri_uv, base, height: int, width: int, sigma: float, margin: float,
+                num_pix: int):  # fmt: skip
+        kernels = numba_kernels()
+        tri = tri_uv.detach().reshape(-1, 6).contiguous()
+        base = base.contiguous()
+        out = torch.empty(num_pix, dtype=tri.dtype)
+        kernels.soft_logsum_forward(tri.numpy(), base.numpy(), height, width, 1.0 / sigma,
+                                    margin, num_pix, out.numpy())  # fmt: skip
+        ctx.save_for_backward(tri, base)
+        ctx.args = (height, width, 1.0 / sigma, margin)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad_out):
+        tri, base = ctx.saved_tensors
+        grad = torch.empty_like(tri)
+        go = grad_out.detach().to(tri.dtype).contiguous()
+        numba_kernels().soft_logsum_backward(tri.numpy(), base.numpy(), *ctx.args, go.numpy(),
+                                              grad.numpy())  # fmt: skip
+        return grad.view(-1, 3, 2), None, None, None, None, None, None
 
 
 def soft_silhouette(
@@ -275,8 +322,13 @@ def soft_log_visibility(
     else:
         tri_uv, _, keep = project_faces(v, f, camera, near)
         base = torch.div(keep, F, rounding_mode="floor") * (H * W)  # batch offsets
-        face, table = _face_table(tri_uv, H, W, cull_margin(sigma, cull_eps), base)
-        logs = _SoftLogSum.apply(tri_uv, face, table, W, sigma, B * H * W).view(B, H, W)
+        margin = cull_margin(sigma, cull_eps)
+        if get_backend() == "numba" and tri_uv.device.type == "cpu":
+            logs = _SoftLogSumNumba.apply(tri_uv, base, H, W, sigma, margin, B * H * W)
+        else:
+            face, table = _face_table(tri_uv, H, W, margin, base)
+            logs = _SoftLogSum.apply(tri_uv, face, table, W, sigma, B * H * W)
+        logs = logs.view(B, H, W)
     sil = -torch.expm1(logs)
     if not batched:
         return sil[0], logs[0]
