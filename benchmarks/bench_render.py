@@ -81,10 +81,12 @@ def _worker(cfg: dict) -> dict:
     if method == "dense":
         if cfg.get("band"):
             cam, scale = _band(cam, cfg["band"])
-        render = lambda v, f: dense_soft_silhouette(v, f, cam, chunk_faces=512)  # noqa: E731
-    elif method in ("culled", "culled-compiled"):
-        soft.set_compile(method == "culled-compiled")
-        render = lambda v, f: soft.soft_silhouette(v, f, cam)  # noqa: E731
+        render = lambda v, f: dense_soft_silhouette(v, f, cam, sigma=cfg["sigma"], chunk_faces=512)  # noqa: E731
+    elif method.startswith("culled"):
+        backend = {"culled": "numba", "culled-torch": "torch", "culled-compiled": "compile"}[method]
+        soft.set_backend(backend)
+        sigma = cfg["sigma"]
+        render = lambda v, f: soft.soft_silhouette(v, f, cam, sigma=sigma)  # noqa: E731
     target = torch.rand(cam.height, cam.width)
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     out = {"pairs": None}
@@ -105,10 +107,25 @@ def _worker(cfg: dict) -> dict:
                 loss = loss + ((render(p, f) - target) ** 2).mean()
             loss.backward()
 
+    kernel_s = [0.0]
+    if method == "culled":  # time spent inside the numba kernels (the rest: projection, autograd)
+        from easyhoi.render import _numba_kernels as kern
+
+        for name in ("soft_logsum_forward", "soft_logsum_backward"):
+            fn = getattr(kern, name)
+
+            def timed(*a, _fn=fn):
+                t = time.perf_counter()
+                _fn(*a)
+                kernel_s[0] += time.perf_counter() - t
+
+            setattr(kern, name, timed)
+
     t0 = time.perf_counter()
     step()  # warm-up (includes compilation for the compiled variant)
     out["first_s"] = time.perf_counter() - t0
     times, cpu = [], []
+    kernel_s[0] = 0.0
     for _ in range(cfg["repeats"]):
         t0, c0 = time.perf_counter(), time.process_time()
         step()
@@ -119,13 +136,14 @@ def _worker(cfg: dict) -> dict:
     out["ms_min"] = 1000 * min(times)
     out["peak_mb"] = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) / 1024
     out["extrapolated_x"] = scale
+    out["kernel_share"] = kernel_s[0] / sum(times) if method == "culled" else None
     if method.startswith("culled"):
         from easyhoi.render._common import project_faces
 
         n = 0
         for v, f in meshes:
             tri_uv, _, _ = project_faces(v[None], f, cam, 1e-3)
-            face, _ = soft._face_table(tri_uv, cam.height, cam.width, soft.cull_margin(1.0),
+            face, _ = soft._face_table(tri_uv, cam.height, cam.width, soft.cull_margin(sigma),
                                        torch.zeros(tri_uv.shape[0], dtype=torch.long))  # fmt: skip
             n += face.numel()
         out["pairs"] = n
@@ -152,6 +170,9 @@ def main() -> None:
     ap.add_argument("--band", type=int, default=8, help="rows of the dense timing band")
     ap.add_argument("--threads", type=int, default=1, help="torch threads per worker")
     ap.add_argument("--repeats", type=int, default=None)
+    ap.add_argument("--sigma", type=float, default=1.0, help="sharpness (px^2) of the main rows")
+    ap.add_argument("--opt-sigma", type=float, default=0.1,
+                    help="sharpness (px^2) of the extra optimizer-setting rows")  # fmt: skip
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
@@ -160,24 +181,32 @@ def main() -> None:
 
     sizes = [128] if args.quick else [128, 256, 512]
     reps = args.repeats or (3 if args.quick else 7)
-    base = {"threads": args.threads, "repeats": reps}
+    base = {"threads": args.threads, "repeats": reps, "sigma": args.sigma}
     band = None if args.full_dense else args.band
     cfgs = []
     for s in sizes:
         cfgs.append({**base, "size": s, "meshes": "hand+object", "method": "culled"})
+        cfgs.append({**base, "size": s, "meshes": "hand+object", "method": "culled-torch"})
         if not args.no_compile:
             cfgs.append({**base, "size": s, "meshes": "hand+object", "method": "culled-compiled"})
         cfgs.append({**base, "size": s, "meshes": "hand+object", "method": "dense",
                      "band": band, "repeats": 1})  # fmt: skip
         for m in ("hand", "object"):
             cfgs.append({**base, "size": s, "meshes": m, "method": "culled"})
+        for m in ("hand", "hand+object"):  # the optimizer's sharpness; stages 2-3 render the hand
+            for meth in ("culled", "culled-torch"):
+                cfgs.append({**base, "size": s, "meshes": m, "method": meth,
+                             "sigma": args.opt_sigma})  # fmt: skip
         cfgs.append({**base, "size": s, "meshes": "object", "method": "peel"})
         cfgs.append({**base, "size": s, "meshes": "object", "method": "peel_pixels"})
 
     rows = []
-    hdr = f"{'px':>4} {'meshes':<12} {'method':<16} {'pairs':>9} {'ms med':>9} {'ms min':>9} "
+    print("ms per forward+backward = seconds per 1,000 iterations; kern = share of the time spent")
+    print("inside the numba kernels (the rest: projection, autograd, loss)")
+    hdr = f"{'px':>4} {'meshes':<12} {'method':<16} {'sigma':>5} {'pairs':>9} {'ms med':>9} "
+    hdr += f"{'ms min':>9} "
     hdr += f"{'cpu ms':>9} "
-    hdr += f"{'first s':>8} {'peak MB':>8} {'dense/culled':>12}"
+    hdr += f"{'first s':>8} {'peak MB':>8} {'kern':>5} {'dense/culled':>12}"
     print(hdr)
     print("-" * len(hdr))
     for cfg in cfgs:
@@ -190,16 +219,18 @@ def main() -> None:
         if r["method"] == "dense":
             for c in rows:
                 if c.get("method") == "culled" and c["size"] == r["size"] and "error" not in c \
-                        and c["meshes"] == r["meshes"]:  # fmt: skip
+                        and c["meshes"] == r["meshes"] and c["sigma"] == r["sigma"]:  # fmt: skip
                     r["speedup_vs_culled"] = r["ms_median"] / c["ms_median"]
                     ratio = f"{r['speedup_vs_culled']:.0f}x"
             if r["extrapolated_x"] != 1.0:
                 ratio += f" (band x{r['extrapolated_x']:.0f})"
         pairs = "" if r["pairs"] is None else str(r["pairs"])
-        print(f"{r['size']:>4} {r['meshes']:<12} {r['method']:<16} {pairs:>9} "
+        kern = "" if r.get("kernel_share") is None else f"{100 * r['kernel_share']:.0f}%"
+        sig = "" if r["method"].startswith("peel") else f"{r['sigma']:g}"
+        print(f"{r['size']:>4} {r['meshes']:<12} {r['method']:<16} {sig:>5} {pairs:>9} "
               f"{r['ms_median']:>9.1f} {r['ms_min']:>9.1f} {r['cpu_ms_median']:>9.1f} "
               f"{r['first_s']:>8.2f} "
-              f"{r['peak_mb']:>8.0f} {ratio:>12}", flush=True)  # fmt: skip
+              f"{r['peak_mb']:>8.0f} {kern:>5} {ratio:>12}", flush=True)  # fmt: skip
     RESULTS.mkdir(parents=True, exist_ok=True)
     meta = {"python": platform.python_version(), "machine": platform.machine(),
             "threads": args.threads, "time": time.strftime("%Y-%m-%d %H:%M:%S")}  # fmt: skip

@@ -24,67 +24,71 @@ import numpy as np
 
 
 @numba.njit(cache=True, inline="always")
-def _pair(ax, ay, bx, by, cx, cy, px, py, far2):
-    """Signed squared distance of pixel ``p`` to triangle ``abc`` and the closest-edge data.
-
-    Returns ``(skip, sgn, d2, rx, ry, t, e)``; ``skip`` when ``p`` is outside by more than
-    ``sqrt(far2)``. Edge ``e`` runs from corner ``e`` to corner ``(e + 1) % 3``; ``r = p - q``
-    with ``q = (1 - t) start + t end`` the closest boundary point.
-    """
-    best = np.inf
-    brx = 0.0
-    bry = 0.0
-    bt = 0.0
-    be = 0
-    neg = False
-    pos = False
-    for j in range(3):
-        if j == 0:
-            sx, sy, ex, ey = ax, ay, bx, by
-        elif j == 1:
-            sx, sy, ex, ey = bx, by, cx, cy
-        else:
-            sx, sy, ex, ey = cx, cy, ax, ay
-        dx = ex - sx
-        dy = ey - sy
-        wx = px - sx
-        wy = py - sy
-        cr = dx * wy - dy * wx
-        if cr > 0:
-            pos = True
-        elif cr < 0:
-            neg = True
-        ll = dx * dx + dy * dy
-        t = (wx * dx + wy * dy) / max(ll, 1e-30)
-        t = min(max(t, 0.0), 1.0)
-        rx = wx - t * dx
-        ry = wy - t * dy
-        d2 = rx * rx + ry * ry
-        if d2 < best:
-            best = d2
-            brx = rx
-            bry = ry
-            bt = t
-            be = j
-    inside = not (pos and neg)
-    sgn = 1.0 if inside else -1.0
-    skip = (not inside) and best > far2
-    return skip, sgn, best, brx, bry, bt, be
+def _edge(px, py, sx, sy, dx, dy, inv_len2):
+    """Closest point of edge ``s -> s + d`` to ``p``: ``(d2, rx, ry, t, cross)``."""
+    wx = px - sx
+    wy = py - sy
+    t = min(max((wx * dx + wy * dy) * inv_len2, 0.0), 1.0)
+    rx = wx - t * dx
+    ry = wy - t * dy
+    return rx * rx + ry * ry, rx, ry, t, dx * wy - dy * wx
 
 
 @numba.njit(cache=True, inline="always")
-def _box(tri, f, height, width, margin):
-    """Pixel ranges ``(col0, col1, row0, row1)`` (inclusive) of face ``f``'s grown box."""
-    u0 = min(tri[f, 0], tri[f, 2], tri[f, 4])
-    u1 = max(tri[f, 0], tri[f, 2], tri[f, 4])
-    v0 = min(tri[f, 1], tri[f, 3], tri[f, 5])
-    v1 = max(tri[f, 1], tri[f, 3], tri[f, 5])
+def _closest(px, py, geo):
+    """Signed distance data of pixel ``p`` to a triangle ``geo`` (from :func:`_face`).
+
+    Returns ``(inside, d2, rx, ry, t, e)``: the closest boundary point is on edge ``e`` (corner
+    ``e`` to corner ``(e + 1) % 3``) at ``q = (1 - t) start + t end``; ``r = p - q``,
+    ``d2 = |r|^2``.
+    Written with selects rather than branches (the closest edge is unpredictable).
+    """
+    ax, ay, bx, by, cx, cy, d0x, d0y, d1x, d1y, d2x, d2y, i0, i1, i2 = geo
+    e0, x0, y0, t0, k0 = _edge(px, py, ax, ay, d0x, d0y, i0)
+    e1, x1, y1, t1, k1 = _edge(px, py, bx, by, d1x, d1y, i1)
+    e2, x2, y2, t2, k2 = _edge(px, py, cx, cy, d2x, d2y, i2)
+    c1 = e1 < e0
+    d2 = e1 if c1 else e0
+    rx = x1 if c1 else x0
+    ry = y1 if c1 else y0
+    t = t1 if c1 else t0
+    e = 1 if c1 else 0
+    c2 = e2 < d2
+    d2 = e2 if c2 else d2
+    rx = x2 if c2 else rx
+    ry = y2 if c2 else ry
+    t = t2 if c2 else t
+    e = 2 if c2 else e
+    inside = (k0 >= 0 and k1 >= 0 and k2 >= 0) or (k0 <= 0 and k1 <= 0 and k2 <= 0)
+    return inside, d2, rx, ry, t, e
+
+
+@numba.njit(cache=True, inline="always")
+def _log1p_exp_neg(y):
+    """``log(1 + exp(-y))`` for ``y >= 0``; a 3-term series below 1e-3 (error < 1e-13)."""
+    z = math.exp(-y)
+    if z < 1e-3:
+        return z * (1.0 - z * (0.5 - z * (1.0 / 3.0)))
+    return math.log1p(z)
+
+
+@numba.njit(cache=True, inline="always")
+def _face(tri, f, height, width, margin):
+    """Corners, edge vectors, inverse squared edge lengths and the grown pixel box of face f."""
+    ax, ay = np.float64(tri[f, 0]), np.float64(tri[f, 1])
+    bx, by = np.float64(tri[f, 2]), np.float64(tri[f, 3])
+    cx, cy = np.float64(tri[f, 4]), np.float64(tri[f, 5])
+    d0x, d0y, d1x, d1y, d2x, d2y = bx - ax, by - ay, cx - bx, cy - by, ax - cx, ay - cy
+    i0 = 1.0 / max(d0x * d0x + d0y * d0y, 1e-30)
+    i1 = 1.0 / max(d1x * d1x + d1y * d1y, 1e-30)
+    i2 = 1.0 / max(d2x * d2x + d2y * d2y, 1e-30)
     # clamp in floating point first: a far-away corner must not overflow the int cast
-    c0 = int(min(max(math.ceil(u0 - margin - 0.5), 0.0), float(width)))
-    c1 = int(max(min(math.floor(u1 + margin - 0.5), width - 1.0), -1.0))
-    r0 = int(min(max(math.ceil(v0 - margin - 0.5), 0.0), float(height)))
-    r1 = int(max(min(math.floor(v1 + margin - 0.5), height - 1.0), -1.0))
-    return c0, c1, r0, r1
+    c0 = int(min(max(math.ceil(min(ax, bx, cx) - margin - 0.5), 0.0), float(width)))
+    c1 = int(max(min(math.floor(max(ax, bx, cx) + margin - 0.5), width - 1.0), -1.0))
+    r0 = int(min(max(math.ceil(min(ay, by, cy) - margin - 0.5), 0.0), float(height)))
+    r1 = int(max(min(math.floor(max(ay, by, cy) + margin - 0.5), height - 1.0), -1.0))
+    geo = (ax, ay, bx, by, cx, cy, d0x, d0y, d1x, d1y, d2x, d2y, i0, i1, i2)
+    return geo, c0, c1, r0, r1
 
 
 @numba.njit(cache=True)
@@ -96,25 +100,25 @@ def soft_logsum_forward(tri, base, height, width, inv_sigma, margin, num_pix, ou
         base: (N,) int64 pixel offset of each face's image (``b * H * W`` in a batch).
         height, width: image size.
         inv_sigma: 1 / sigma (px^-2).
-        margin: culling distance (px).
+        margin: culling distance (px); pixels farther outside a face are skipped.
         num_pix: length of ``out``.
         out: (num_pix,) output array (overwritten).
     """
     acc = np.zeros(num_pix)
     far2 = margin * margin
     for f in range(tri.shape[0]):
-        ax, ay, bx, by, cx, cy = tri[f, 0], tri[f, 1], tri[f, 2], tri[f, 3], tri[f, 4], tri[f, 5]
-        c0, c1, r0, r1 = _box(tri, f, height, width, margin)
+        geo, c0, c1, r0, r1 = _face(tri, f, height, width, margin)
         for row in range(r0, r1 + 1):
             py = row + 0.5
             off = base[f] + row * width
             for col in range(c0, c1 + 1):
-                skip, sgn, d2, rx, ry, t, e = _pair(ax, ay, bx, by, cx, cy, col + 0.5, py, far2)
-                if skip:
-                    continue
-                x = sgn * d2 * inv_sigma
-                # log(1 - sigmoid(x)) = -softplus(x), stable for any x
-                acc[off + col] -= max(x, 0.0) + math.log1p(math.exp(-abs(x)))
+                inside, d2, rx, ry, t, e = _closest(col + 0.5, py, geo)
+                # log(1 - sigmoid(x)) = -softplus(x), x = +-d2 / sigma
+                if inside:
+                    x = d2 * inv_sigma
+                    acc[off + col] -= x + _log1p_exp_neg(x)
+                elif d2 <= far2:
+                    acc[off + col] -= _log1p_exp_neg(d2 * inv_sigma)
     for i in range(num_pix):
         out[i] = acc[i]
 
@@ -126,11 +130,9 @@ def soft_logsum_backward(tri, base, height, width, inv_sigma, margin, grad_out, 
     ``d log(1 - D) / d start = coef (1 - t) r`` and ``d / d end = coef t r`` for the closest edge
     (envelope theorem), ``coef = 2 sgn sigmoid(x) / sigma``.
     """
-    n = tri.shape[0]
     far2 = margin * margin
-    for f in range(n):
-        ax, ay, bx, by, cx, cy = tri[f, 0], tri[f, 1], tri[f, 2], tri[f, 3], tri[f, 4], tri[f, 5]
-        c0, c1, r0, r1 = _box(tri, f, height, width, margin)
+    for f in range(tri.shape[0]):
+        geo, c0, c1, r0, r1 = _face(tri, f, height, width, margin)
         g = np.zeros(6)
         for row in range(r0, r1 + 1):
             py = row + 0.5
@@ -139,17 +141,15 @@ def soft_logsum_backward(tri, base, height, width, inv_sigma, margin, grad_out, 
                 go = grad_out[off + col]
                 if go == 0.0:
                     continue
-                skip, sgn, d2, rx, ry, t, e = _pair(ax, ay, bx, by, cx, cy, col + 0.5, py, far2)
-                if skip:
-                    continue
-                x = sgn * d2 * inv_sigma
-                if x >= 0:
-                    sig = 1.0 / (1.0 + math.exp(-x))
+                inside, d2, rx, ry, t, e = _closest(col + 0.5, py, geo)
+                if inside:
+                    s = go * 2.0 * inv_sigma / (1.0 + math.exp(-d2 * inv_sigma))
+                elif d2 <= far2:
+                    z = math.exp(-d2 * inv_sigma)
+                    s = -go * 2.0 * inv_sigma * z / (1.0 + z)
                 else:
-                    ex = math.exp(x)
-                    sig = ex / (1.0 + ex)
-                s = go * sig * sgn * 2.0 * inv_sigma
-                e1 = (e + 1) % 3
+                    continue
+                e1 = e + 1 if e < 2 else 0
                 g[2 * e] += s * (1.0 - t) * rx
                 g[2 * e + 1] += s * (1.0 - t) * ry
                 g[2 * e1] += s * t * rx
@@ -184,7 +184,7 @@ def zbuffer(tri, tri_z, height, width, out):
         tl1 = sg * e1y > 0 or (sg * e1y == 0 and sg * e1x < 0)
         tl2 = sg * e2y > 0 or (sg * e2y == 0 and sg * e2x < 0)
         iz0, iz1, iz2 = 1.0 / tri_z[f, 0], 1.0 / tri_z[f, 1], 1.0 / tri_z[f, 2]
-        c0, c1, r0, r1 = _box(tri, f, height, width, 0.0)
+        _, c0, c1, r0, r1 = _face(tri, f, height, width, 0.0)
         for row in range(r0, r1 + 1):
             py = row + 0.5
             for col in range(c0, c1 + 1):
