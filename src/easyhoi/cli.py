@@ -249,13 +249,16 @@ def cmd_doctor(args) -> int:
 
     lines = [f"easyhoi {__version__}, Python {platform.python_version()}"]
     for mod in ("torch", "numpy", "scipy", "trimesh", "embreex", "point_cloud_utils",
-                "pymeshfix", "pybullet", "geomloss", "cv2", "skimage", "mediapipe",
-                "transformers", "diffusers", "gradio", "ray"):  # fmt: skip
+                "pymeshfix", "pybullet", "geomloss", "numba", "cv2", "skimage",
+                "mediapipe", "transformers", "diffusers", "gradio", "ray"):  # fmt: skip
         try:
             m = importlib.import_module(mod)
             lines.append(f"  {mod:18s} {getattr(m, '__version__', 'ok')}")
         except Exception as exc:  # noqa: BLE001 - report anything that fails to import
             lines.append(f"  {mod:18s} not available ({type(exc).__name__})")
+    from easyhoi.render import get_backend
+
+    lines.append(f"renderer kernels: {get_backend()} (numba = compiled; torch = slower fallback)")
     lines.append("backends:")
     for role in ROLES:
         lines.append(f"  {role:10s} {', '.join(available(role))}")
