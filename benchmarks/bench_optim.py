@@ -4,9 +4,21 @@ Both presets run on the same synthetic hand-object scenes (``tests/optim_scenes.
 OpenHand grasping a cylinder or a box, masks rendered from the ground truth, the hand estimate
 perturbed) in the same process, one intra-op thread (the optimizer's small problems run several
 times slower oversubscribed on a busy machine). For each run: seconds per stage and in total,
-and quality against the ground truth: hand mask IoU, object (amodal) mask IoU, penetration depth
-(cm), intersection volume (cm^3, solid), signed contact distance (cm), mean hand-vertex error
-(cm, object frame scaled by the TRUE metric scale) and the metric-scale error (%).
+and quality against the ground truth, every metric measured the same way for both presets (at
+the scene's size): hand mask IoU, object (amodal) mask IoU, penetration depth (cm),
+intersection volume (cm^3, solid), |signed contact distance| (cm), mean hand-vertex error (cm,
+object frame scaled by the TRUE metric scale), the metric-scale error (%) and the simulation
+displacement S.D. (cm; :func:`easyhoi.metrics.simulation_displacement`, 35 steps, gravity
+image-down). A ``gt`` row gives the ground-truth hand's values (its grasp has a 1 mm gap and
+does not hold the object in the simulation: S.D. ~10 cm; an S.D. far below that comes from a
+hand buried in the object, see the I.V. column).
+
+Comparison ("fast no worse than paper by more than 5 %", the issue's target): an IoU is worse
+when ``fast < 0.95 * paper``; a lower-is-better metric when ``fast > 1.05 * paper + tol`` with a
+small absolute tolerance per metric (``METRICS``: 0.05 cm penetration / contact / hand error,
+0.125 cm^3 = one voxel of the I.V. grid, 0.5 points of scale error, 0.5 cm S.D.), because 5 %
+of a value near zero is below what the metric resolves (see :func:`_worse`). The summary lists,
+per scene, the metrics on which fast is worse by that rule.
 
 The paper preset is the paper's schedule (1000-iteration caps, 256 px renders, no early
 stopping besides the stop losses): about 1.5 minutes per scene on one idle CPU core.
@@ -35,14 +47,16 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 NOISE = dict(rot_noise=0.05, trans_noise=0.02, depth_noise=0.05, pose_noise=0.03)
+#: (key, column label, higher is better, absolute tolerance). See :func:`_worse`.
 METRICS = (
-    ("hand_iou", "hand IoU", True),
-    ("object_iou", "obj IoU", True),
-    ("pen_cm", "pen cm", False),
-    ("iv_cm3", "IV cm3", False),
-    ("contact_cm", "|cont| cm", False),
-    ("hand_err_cm", "hand err cm", False),
-    ("scale_err_pct", "scale err %", False),
+    ("hand_iou", "hand IoU", True, 0.0),
+    ("object_iou", "obj IoU", True, 0.0),
+    ("pen_cm", "pen cm", False, 0.05),
+    ("iv_cm3", "IV cm3", False, 0.125),
+    ("contact_cm", "|cont| cm", False, 0.05),
+    ("hand_err_cm", "hand err cm", False, 0.05),
+    ("scale_err_pct", "scale err %", False, 0.5),
+    ("sd_cm", "S.D. cm", False, 0.5),
 )
 
 
@@ -57,10 +71,43 @@ def _capped(cfg, cap: int):
     )
 
 
-def run_one(scene, preset: str, cap: int) -> dict:
+def _quality(scene, model, params, metric_scale: float, camera, render_size: int) -> dict:
+    """Quality of a hand (metric object frame) against the scene's ground truth."""
     import numpy as np
     import torch
+    import trimesh
 
+    from easyhoi.metrics import simulation_displacement
+    from easyhoi.optim.run import plausibility
+    from easyhoi.optim.scene import Scene
+
+    sc = Scene.from_input(scene.inp, model, torch.float64)
+    params = params.detach().to(dtype=torch.float64)
+    p = plausibility(sc, params, metric_scale, camera.detach().to(torch.float64), render_size)
+    with torch.no_grad():
+        gt = model(scene.gt_hand).vertices[0].numpy() / scene.gt_metric_scale
+        v_m = model(params).vertices[0].numpy()
+    v = v_m / metric_scale
+    hand = trimesh.Trimesh(v_m, model.faces_for(params.side).numpy(), process=False)
+    obj = sc.watertight.copy()
+    obj.apply_scale(metric_scale)
+    R = camera.R.detach().double().numpy()
+    gravity = R.T @ np.array([0.0, 1.0, 0.0])  # image down, in the object frame
+    sim = simulation_displacement(hand, obj, gravity_dir=tuple(gravity))
+    return {
+        "hand_iou": p["hand_mask_iou"],
+        "object_iou": p["object_mask_iou"],
+        "pen_cm": p["penetration_depth_cm"],
+        "iv_cm3": p["intersection_volume_cm3"],
+        "contact_cm": abs(p["contact_distance_cm"]),
+        "in_contact": p["in_contact"],
+        "hand_err_cm": float(np.linalg.norm(v - gt, axis=1).mean() * scene.gt_metric_scale * 100),
+        "scale_err_pct": abs(metric_scale / scene.gt_metric_scale - 1.0) * 100,
+        "sd_cm": float(sim.displacement),
+    }
+
+
+def run_one(scene, preset: str, cap: int, size: int) -> dict:
     from easyhoi.config import get_preset
     from easyhoi.optim.run import optimize
 
@@ -70,11 +117,6 @@ def run_one(scene, preset: str, cap: int) -> dict:
     start = time.perf_counter()
     res = optimize(scene.inp, cfg)
     total = time.perf_counter() - start
-    model = scene.model
-    with torch.no_grad():
-        gt = model(scene.gt_hand).vertices[0].numpy() / scene.gt_metric_scale
-        v = model(res.hand_params.to(dtype=torch.float64)).vertices[0].numpy() / res.metric_scale
-    p = res.plausibility
     return {
         "preset": preset,
         "paper_cap": cap if preset == "paper" else None,
@@ -86,23 +128,32 @@ def run_one(scene, preset: str, cap: int) -> dict:
         },
         "iterations": {s.name: s.iterations for s in res.stages},
         "stop": {s.name: s.stop_reason for s in res.stages},
-        "hand_iou": p["hand_mask_iou"],
-        "object_iou": p["object_mask_iou"],
-        "pen_cm": p["penetration_depth_cm"],
-        "iv_cm3": p["intersection_volume_cm3"],
-        "contact_cm": abs(p["contact_distance_cm"]),
-        "in_contact": p["in_contact"],
-        "hand_err_cm": float(np.linalg.norm(v - gt, axis=1).mean() * scene.gt_metric_scale * 100),
-        "scale_err_pct": abs(res.metric_scale / scene.gt_metric_scale - 1.0) * 100,
+        # measured at the scene's size (not the preset's render size), the same for both
+        **_quality(scene, scene.model, res.hand_params, res.metric_scale, res.camera, size),
     }
 
 
-def _worse(fast: float, paper: float, higher_better: bool, tol: float = 0.05) -> bool:
-    """Fast is worse than paper by more than 5 % (relative, with a small absolute floor)."""
-    floor = {True: 0.01, False: 0.05}[higher_better]
+def ground_truth_row(scene, size: int) -> dict:
+    """The metrics of the ground-truth hand (reference: what a perfect result scores)."""
+    q = _quality(scene, scene.model, scene.gt_hand, scene.gt_metric_scale, scene.gt_camera, size)
+    return {"preset": "gt", "paper_cap": None, "seconds": {}, **q}
+
+
+def _worse(fast: float, paper: float, higher_better: bool, abs_tol: float, tol: float = 0.05):
+    """Fast is worse than paper by more than ``tol`` (5 %).
+
+    Higher-is-better metrics (IoUs, in [0, 1]): relative only, ``fast < (1 - tol) * paper``.
+    Lower-is-better metrics: worse by more than 5 % relative AND by more than ``abs_tol``,
+    i.e. ``fast > (1 + tol) * paper + abs_tol``: 5 % of a value near zero (a penetration of
+    0.01 cm) is far below what the metric resolves, so a small absolute tolerance per metric
+    (METRICS) is added: 0.5 mm for penetration, contact distance and hand error (the paper's
+    own tolerance, -5e-3 normalised units, is ~0.5 mm for these ~10 cm objects), one 5 mm voxel
+    (0.125 cm^3) of the solid intersection-volume grid, 0.5 percentage points of scale error and
+    0.5 cm of simulation displacement (PyBullet's contact margin and a few steps of drift).
+    """
     if higher_better:
-        return fast < paper * (1 - tol) - 1e-9
-    return fast > paper * (1 + tol) + floor
+        return fast < paper * (1 - tol) - abs_tol - 1e-9
+    return fast > paper * (1 + tol) + abs_tol
 
 
 def main(argv=None) -> int:
@@ -128,8 +179,9 @@ def main(argv=None) -> int:
     optimize(make_scene("box", size=64).inp, with_overrides(get_preset("fast").optim, tiny))
     for kind in kinds:
         scene = make_scene(kind, size=args.size, **NOISE)
+        rows.append({**ground_truth_row(scene, args.size), "scene": kind})
         for preset in ("fast", "paper"):
-            r = run_one(scene, preset, cap)
+            r = run_one(scene, preset, cap, args.size)
             r["scene"] = kind
             rows.append(r)
             print(f"{kind:9s} {preset:6s} {r['seconds']['total']:7.1f} s", flush=True)
@@ -138,20 +190,23 @@ def main(argv=None) -> int:
     head = (
         f"{'scene':9s} {'preset':11s} {'camera':>7s} {'contact':>8s} {'refine':>7s} {'total':>7s}"
     )
-    head += "".join(f" {label:>11s}" for _, label, _ in METRICS)
+    head += "".join(f" {label:>11s}" for _, label, _, _ in METRICS)
     print(head)
     for r in rows:
         s = r["seconds"]
         name = r["preset"] + (f"@{cap}" if r["preset"] == "paper" and cap > 0 else "")
-        line = f"{r['scene']:9s} {name:11s} {s['camera']:7.1f} {s['contact']:8.1f} "
-        line += f"{s['refine']:7.1f} {s['total']:7.1f}"
-        line += "".join(f" {r[k]:11.3f}" for k, _, _ in METRICS)
+        line = f"{r['scene']:9s} {name:11s} "
+        if s:
+            line += f"{s['camera']:7.1f} {s['contact']:8.1f} {s['refine']:7.1f} {s['total']:7.1f}"
+        else:
+            line += f"{'-':>7s} {'-':>8s} {'-':>7s} {'-':>7s}"
+        line += "".join(f" {r[k]:11.3f}" for k, _, _, _ in METRICS)
         print(line)
     summary = {}
     for kind in kinds:
         f = next(r for r in rows if r["scene"] == kind and r["preset"] == "fast")
         p = next(r for r in rows if r["scene"] == kind and r["preset"] == "paper")
-        worse = [k for k, _, hb in METRICS if _worse(f[k], p[k], hb)]
+        worse = [k for k, _, hb, tol in METRICS if _worse(f[k], p[k], hb, tol)]
         ratio = p["seconds"]["total"] / max(f["seconds"]["total"], 1e-9)
         summary[kind] = {"speedup": round(ratio, 2), "fast_worse_by_over_5pct": worse}
         print(f"{kind}: paper/fast time ratio {ratio:.1f}x; fast worse (>5%) on: {worse or 'none'}")

@@ -71,6 +71,24 @@ def test_contact_stage_brings_hand_into_contact(kind, hand):
     assert abs(res.metric_scale / sc.gt_metric_scale - 1.0) < 0.15
 
 
+def test_rotation_prior_keeps_the_estimators_rotation(hand):
+    """Stage 2's prior w * ||r||^2 keeps the hand's rotation relative to the camera."""
+    sc, scene, cfg, cam = _setup("cylinder", hand, **NOISE)
+    p, m, _ = initial_hand(scene, sc.inp, cam, SIZE)
+    angles = {}
+    for w in (0.0, 100.0):
+        c = replace(cfg.contact, rotation_prior_weight=w, max_iters=40, register_at=(),
+                    patience=0, stop_loss=0.0)  # fmt: skip
+        st = ContactState(scene, p, cam, m)
+        res = fit_contact(scene, st, c, cfg)
+        angles[w] = float(st.r.detach().norm())
+        assert ("rot_prior" in res.losses[-1]) == (w > 0)
+    assert cfg.contact.rotation_prior_weight == 100.0  # the fast preset uses it
+    assert get_preset("paper").optim.contact.rotation_prior_weight == 0.0  # the paper: free
+    assert angles[0.0] > 0.02  # the mask alone turns the hand by more than a degree
+    assert angles[100.0] < 0.25 * angles[0.0], angles
+
+
 def test_registration_icp_is_iterative(hand):
     """The ICP is a real iteration: on partial overlaps it beats one centroid shift."""
     from scipy.spatial import cKDTree

@@ -111,3 +111,36 @@ def test_reg_gradient_is_the_sign_of_the_deviation(box_scene, hand):
     _, gp, terms = _grad(scene, gt, sc.gt_metric_scale, cfg, cam, None, theta0, reg_weight=1.0)
     assert float(terms["reg"]) == pytest.approx(4.5, rel=1e-4)
     assert torch.equal(gp, torch.sign(gt.pose - theta0)[0])
+
+
+def test_contact_term_is_rescaled_to_manos_contact_vertex_count(box_scene, hand):
+    """contact = (115 / |C|) * sum over the contact zones of max(0, d), d < max distance."""
+    from easyhoi.optim.losses import MANO_CONTACT_VERTICES, contact_loss
+
+    sc, scene, cfg = box_scene
+    p0, _ = _pushed(sc, scene, hand, -0.003)  # 3 mm off the object
+    m = sc.gt_metric_scale
+    only = dict(hand_mask_weight=0.0, penetration_weight=0.0, reg_weight=0.0, contact_weight=1.0)
+    rc = replace(cfg.refine, **only, contact_max_distance=0.2)
+    assert rc.contact_reference_count == 115.0 == MANO_CONTACT_VERTICES
+    got = float(refine_terms(scene, p0, m, p0.pose, rc, None, None)["contact"])
+    # naive reference, vertex by vertex
+    with torch.no_grad():
+        d = scene.sdf(hand(p0).vertices[0] / m, rc.sdf_resolution)
+    cv = scene.regions.contact_vertices.tolist()
+    raw = sum(float(d[i]) for i in cv if 0.0 < float(d[i]) < rc.contact_max_distance)
+    n_in = sum(0.0 < float(d[i]) < rc.contact_max_distance for i in cv)
+    assert len(cv) == 285 and 0 < n_in < len(cv)  # OpenHand: 285 contact vertices
+    assert got == pytest.approx(raw * 115.0 / len(cv), rel=1e-5)
+    # None keeps the plain sum (the paper's term as written, for MANO-size contact zones)
+    plain = replace(rc, contact_reference_count=None)
+    assert float(refine_terms(scene, p0, m, p0.pose, plain, None, None)["contact"]) == (
+        pytest.approx(raw, rel=1e-5)
+    )
+    # the rescaled term is resolution independent: duplicating every vertex changes nothing
+    dc = d[scene.regions.contact_vertices]
+    one = contact_loss(dc, rc.contact_max_distance, reference_count=115.0)
+    two = contact_loss(torch.cat([dc, dc]), rc.contact_max_distance, reference_count=115.0)
+    assert float(two) == pytest.approx(float(one), rel=1e-6)
+    with pytest.raises(Exception, match="reference_count"):
+        contact_loss(dc, reference_count=0.0)

@@ -334,9 +334,15 @@ def fit_contact(
             verts = state.verts_obj()
             _, visible, _ = scene.hand_silhouettes(verts, cam)
             iou = soft_iou_loss(visible, masks["hand"])
+            loss = iou
             cdist = _contact_distance(scene, verts.detach(), sdf_res)
-            score = float(iou.detach()) + cdist
-            terms = {"iou": float(iou.detach()), "contact_dist": cdist, "total": score}
+            terms = {"iou": float(iou.detach()), "contact_dist": cdist}
+            if cfg.rotation_prior_weight > 0:
+                prior = cfg.rotation_prior_weight * (state.r**2).sum()
+                loss = loss + prior
+                terms["rot_prior"] = float(prior.detach())
+            score = float(loss.detach()) + cdist
+            terms["total"] = score
             loop.record(it, terms)
             loop.offer(score, state.state(), it)
             if not due:
@@ -347,7 +353,7 @@ def fit_contact(
                     phase_reason = "patience"
                     break
             opt.zero_grad(set_to_none=True)
-            iou.backward()
+            loss.backward()
             opt.step()
             it += 1
         if loop.best_state is not None:

@@ -12,7 +12,8 @@ Terms
   normalised 2D distributions, on a coarse grid; gives gradients when masks do not overlap.
 - :func:`mask_mse`: mean squared difference between masks.
 - :func:`penetration_loss`: ``(1/V) sum_v max(0, -d(v))`` over hand vertices, ``d`` = object SDF.
-- :func:`contact_loss`: ``sum_v max(0, d(v))`` over the contact-zone vertices.
+- :func:`contact_loss`: ``sum_v max(0, d(v))`` over the contact-zone vertices, optionally
+  rescaled to a reference vertex count (``reference_count / C``, see below).
 - :func:`pose_reg_loss`: ``||theta - theta_0||_1``.
 """
 
@@ -25,6 +26,7 @@ from easyhoi.errors import InvalidInputError
 
 __all__ = [
     "IOU_EPS",
+    "MANO_CONTACT_VERTICES",
     "MASS_EPS",
     "contact_loss",
     "mask_mse",
@@ -40,6 +42,12 @@ IOU_EPS = 1e-6
 #: Mass (per coarse cell, in mask units) added to the predicted mask in
 #: :func:`sinkhorn_mask_loss`, so that an empty prediction is a uniform distribution.
 MASS_EPS = 1e-6
+
+#: Contact-zone vertices of MANO (778 vertices; METHOD.md: "about 115"). The paper's weights
+#: were tuned for a sum over this many vertices; :func:`contact_loss` rescales a sum over C
+#: vertices by ``MANO_CONTACT_VERTICES / C`` so that those weights mean the same for any hand
+#: mesh resolution (the built-in OpenHand has 1902 vertices and 285 contact vertices).
+MANO_CONTACT_VERTICES = 115
 
 _REDUCTIONS = ("mean", "sum", "none")
 
@@ -249,9 +257,19 @@ def penetration_loss(
 
 
 def contact_loss(
-    sdf_values: torch.Tensor, max_distance: float | None = None, reduction: str = "mean"
+    sdf_values: torch.Tensor,
+    max_distance: float | None = None,
+    reduction: str = "mean",
+    reference_count: float | None = None,
 ) -> torch.Tensor:
     """Attraction of the contact-zone vertices to the object surface: ``sum_v max(0, d(v))``.
+
+    With ``reference_count = K`` the sum is multiplied by ``K / C`` (C = number of contact-zone
+    vertices given): a resolution-independent sum, ``K`` times the mean gap. With ``K = 115``
+    (:data:`MANO_CONTACT_VERTICES`) it equals the paper's plain sum for MANO (whose contact zones
+    have ~115 vertices) and keeps the paper's weight meaningful for a denser hand mesh, just as
+    the penetration term is a mean over the vertices. A vertex farther than ``max_distance``
+    contributes 0 but still counts in C.
 
     Parameters
     ----------
@@ -263,6 +281,8 @@ def contact_loss(
         for example on fingers that do not touch, are left alone).
     reduction : {"mean", "sum", "none"}
         Combines the per-hand sums (B,).
+    reference_count : float or None
+        None: the plain sum over the C vertices. A positive number K: the sum times ``K / C``.
 
     Returns
     -------
@@ -274,7 +294,16 @@ def contact_loss(
         if not max_distance > 0:
             raise InvalidInputError(f"contact_loss: max_distance must be > 0, got {max_distance}")
         gap = torch.where(d < max_distance, gap, torch.zeros_like(gap))
-    return _reduce(gap.sum(dim=1), reduction)
+    per_hand = gap.sum(dim=1)
+    if reference_count is not None:
+        if not reference_count > 0:
+            raise InvalidInputError(
+                f"contact_loss: reference_count must be > 0 or None, got {reference_count}"
+            )
+        if d.shape[1] == 0:
+            raise InvalidInputError("contact_loss: reference_count given but no contact vertices")
+        per_hand = per_hand * (float(reference_count) / d.shape[1])
+    return _reduce(per_hand, reduction)
 
 
 def pose_reg_loss(

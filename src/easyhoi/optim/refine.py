@@ -6,8 +6,14 @@ scale ``m`` stay fixed. Object-frame vertices are ``model(params).vertices / m``
 
     L = hand_mask_weight   * soft_iou(visible hand, M_h)
       + penetration_weight * (1/V) sum_v max(0, -d(v))      (d below penetration_threshold)
-      + contact_weight     * sum_{v in contact zones} max(0, d(v))
+      + contact_weight     * (K / |C|) sum_{v in C} max(0, d(v))   (C: contact zones)
       + reg_weight         * ||theta - theta_0||_1
+
+``K = contact_reference_count`` (115, MANO's contact-zone size): the contact sum is made
+resolution independent like the mean penetration term, so the paper's weights balance the two
+terms as they do for MANO whatever the hand mesh (the built-in OpenHand has |C| = 285; its raw
+sum would weigh 2.5x more against the penetration mean than the paper's). For MANO
+(|C| ~ 115-117) the factor is ~1, the paper's term.
 
 with ``d`` the object SDF (trilinear lookup in an ``sdf_resolution``^3 grid) in normalised
 object units (object units / the object's largest side). A term with weight 0 is not computed.
@@ -70,7 +76,9 @@ def refine_terms(
             total = total + cfg.penetration_weight * terms["penetration"]
         if cfg.contact_weight > 0:
             dc = d[scene.regions.contact_vertices]
-            terms["contact"] = contact_loss(dc, cfg.contact_max_distance)
+            terms["contact"] = contact_loss(
+                dc, cfg.contact_max_distance, reference_count=cfg.contact_reference_count
+            )
             total = total + cfg.contact_weight * terms["contact"]
     if cfg.reg_weight > 0:
         terms["reg"] = pose_reg_loss(params.pose, theta0)
