@@ -80,3 +80,24 @@ def test_empty_object_and_detach():
     assert float(m.object.abs().max()) == 0 and bool(torch.isinf(m.object_depth).all())
     d = m.detach()
     assert d.hand.shape == (40, 48) and not d.hand.requires_grad
+
+
+def test_extend_depth_matches_naive_min_filter():
+    from easyhoi.render import extend_depth, soft
+
+    g = torch.Generator().manual_seed(3)
+    z = torch.rand(13, 17, generator=g, dtype=torch.float64) + 1.0
+    z[torch.rand(13, 17, generator=g) < 0.6] = float("inf")
+    r = 2
+    expected = z.clone()
+    for i in range(13):
+        for j in range(17):
+            if not torch.isfinite(z[i, j]):
+                expected[i, j] = z[max(i - r, 0) : i + r + 1, max(j - r, 0) : j + r + 1].min()
+    try:
+        for name in ("numba", "torch"):
+            soft.set_backend(name)
+            assert torch.equal(extend_depth(z, r), expected), name
+            assert torch.equal(extend_depth(z, 0), z)
+    finally:
+        soft.set_backend("auto")

@@ -3,7 +3,7 @@
 See docs/rendering.md for the design, conventions and measured performance.
 """
 
-from easyhoi.render.composite import HOIMasks, hoi_masks
+from easyhoi.render.composite import HOIMasks, extend_depth, hoi_masks
 from easyhoi.render.raster import Fragments, depth_map, peel, peel_pixels, rasterize
 from easyhoi.render.soft import (
     cull_margin,
@@ -20,6 +20,7 @@ __all__ = [
     "HOIMasks",
     "cull_margin",
     "depth_map",
+    "extend_depth",
     "get_backend",
     "hoi_masks",
     "peel",

@@ -22,6 +22,7 @@ from dataclasses import dataclass, fields, replace
 
 import torch
 
+from easyhoi.render._common import get_backend, numba_kernels
 from easyhoi.render.raster import depth_map
 from easyhoi.render.soft import (
     DEFAULT_CULL_EPS,
@@ -57,12 +58,23 @@ class HOIMasks:
         return replace(self, **{f.name: getattr(self, f.name).detach() for f in fields(self)})
 
 
-def _extend(z: torch.Tensor, radius: int) -> torch.Tensor:
-    """Fill missed pixels with the minimum depth within ``radius`` px (min-filter)."""
+def extend_depth(z: torch.Tensor, radius: int) -> torch.Tensor:
+    """Fill missed pixels (``inf``) of a z-buffer with the minimum depth within ``radius`` px.
+
+    A square min-filter of side ``2 radius + 1`` (clipped at the image border), applied only
+    where ``z`` is ``inf``; hit pixels keep their depth. No gradient.
+    """
     if radius <= 0:
         return z
-    k = 2 * radius + 1
-    zmin = -torch.nn.functional.max_pool2d(-z[None, None], k, stride=1, padding=radius)[0, 0]
+    z = z.detach()
+    if get_backend() == "numba" and z.device.type == "cpu" and z.ndim == 2:
+        zmin = torch.empty_like(z)
+        numba_kernels().min_filter(z.contiguous().numpy(), int(radius), zmin.numpy())
+    else:  # separable max-pool of -z
+        m = -z[None, None]
+        m = torch.nn.functional.max_pool2d(m, (2 * radius + 1, 1), stride=1, padding=(radius, 0))
+        m = torch.nn.functional.max_pool2d(m, (1, 2 * radius + 1), stride=1, padding=(0, radius))
+        zmin = -m[0, 0]
     return torch.where(torch.isfinite(z), z, zmin)
 
 
@@ -97,7 +109,7 @@ def hoi_masks(
     zh = depth_map(torch.as_tensor(hand_verts).detach(), hand_faces, camera.detach(), near)
     zo = depth_map(torch.as_tensor(object_verts).detach(), object_faces, camera.detach(), near)
     radius = math.ceil(cull_margin(sigma, cull_eps))
-    zh_ext, zo_ext = _extend(zh, radius), _extend(zo, radius)
+    zh_ext, zo_ext = extend_depth(zh, radius), extend_depth(zo, radius)
     hand_vis = hand * (zh_ext <= zo).to(hand.dtype)
     obj_vis = obj * (zo_ext < zh).to(obj.dtype)
     return HOIMasks(hand, obj, hand_vis, obj_vis, zh, zo)
