@@ -56,6 +56,23 @@ def test_folder_contents(folder, scene):
     assert len(trimesh.load(d / "scene.glb").geometry) == 2
 
 
+def test_result_folder_reloads_as_hoi_result(folder, scene):
+    from easyhoi.io.hoi_io import load_hoi_result
+
+    result, _ = scene
+    back = load_hoi_result(folder[0] / "photo_01")
+    np.testing.assert_allclose(back.hand_vertices, result.hand_vertices, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(back.object_mesh.vertices, result.object_mesh.vertices,
+                               rtol=1e-9, atol=1e-12)  # fmt: skip
+    assert back.metric_scale == result.metric_scale
+    np.testing.assert_allclose(back.camera.K.numpy(), result.camera.K.double().numpy())
+    np.testing.assert_allclose(back.hand_params.pose.numpy(),
+                               result.hand_params.pose.double().numpy(), atol=1e-7)  # fmt: skip
+    assert [s.name for s in back.stages] == [s.name for s in result.stages]
+    assert [s.iterations for s in back.stages] == [s.iterations for s in result.stages]
+    assert back.plausibility == pytest.approx(result.plausibility, nan_ok=True)
+
+
 def test_report_is_self_contained(folder, scene):
     result, inp = scene
     page = (folder[0] / "photo_01" / "report.html").read_text(encoding="utf-8")

@@ -291,10 +291,21 @@ def save_hoi_result(result: HOIResult, folder: str | Path) -> Path:
 
 
 def load_hoi_result(folder: str | Path) -> HOIResult:
-    """Read a folder written by :func:`save_hoi_result`."""
+    """Read a folder written by :func:`save_hoi_result` or a result folder of ``easyhoi
+    reconstruct`` (:func:`easyhoi.io.result_folder.write_result_folder`: ``result.json`` in the
+    export schema with ``hand.ply`` / ``object.ply`` in metres).
+
+    From a result folder the meshes are brought back to object units (divided by
+    ``metric_scale``, so equal to the original up to float rounding) and each stage keeps its
+    summary (name, iterations, seconds, stop reason, final losses) but no snapshot.
+    """
     folder = Path(folder)
     if not folder.is_dir():
         raise InvalidInputError(f"result folder {folder} does not exist")
+    from easyhoi.io.export import EXPORT_SCHEMA  # export imports this module
+
+    if _schema_of(folder / "result.json") == EXPORT_SCHEMA:
+        return _load_exported_result(folder)
     d = _read_json(folder / "result.json", RESULT_SCHEMA)
     hand = _read_mesh(folder, "hand", allow_obj=False)
     try:
@@ -319,4 +330,68 @@ def load_hoi_result(folder: str | Path) -> HOIResult:
             raise
         raise InvalidInputError(f"result.json: {exc}") from None
     except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"result.json has malformed content: {exc}") from None
+
+
+def _schema_of(path: Path) -> str | None:
+    """The ``schema`` field of a JSON file, or None when unreadable (reported later)."""
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    return d.get("schema") if isinstance(d, dict) else None
+
+
+def _load_exported_result(folder: Path) -> HOIResult:
+    """An :class:`HOIResult` from a result folder (export schema, meshes in metres)."""
+    import torch
+
+    from easyhoi.io.export import EXPORT_VERSION
+    from easyhoi.structures import HandParams
+
+    d = json.loads((folder / "result.json").read_text(encoding="utf-8"))
+    version = d.get("version")
+    if not isinstance(version, int) or version > EXPORT_VERSION:
+        raise InvalidInputError(
+            f"result.json has export version {version!r}; this easyhoi reads up to {EXPORT_VERSION}"
+        )
+    hand = _read_mesh(folder, "hand", allow_obj=False)
+    obj = _read_mesh(folder, "object", allow_obj=False)
+    try:
+        scale = float(_field(d, "metric_scale", "result.json"))
+        if not np.isfinite(scale) or scale <= 0:
+            raise InvalidInputError(f"result.json: metric_scale must be positive, got {scale}")
+        obj.apply_scale(1.0 / scale)
+        h = _field(d, "hand", "result.json")
+        params = HandParams.from_dict(h, dtype=torch.float64)
+        stages = tuple(
+            StageResult(
+                name=s["name"],
+                iterations=int(s["iterations"]),
+                seconds=float(s["seconds"]),
+                stop_reason=s.get("stop_reason", ""),
+                losses=[s["final_losses"]] if s.get("final_losses") else [],
+            )  # fmt: skip
+            for s in _field(d, "stages", "result.json")
+        )
+        return HOIResult(
+            hand_params=params,
+            camera=_camera_from(_field(d, "camera_object_units", "result.json")),
+            hand_vertices=np.asarray(hand.vertices, dtype=np.float64) / scale,
+            hand_faces=np.asarray(hand.faces),
+            object_mesh=obj,
+            metric_scale=scale,
+            hand_model=d.get("hand_model", "open"),
+            stages=stages,
+            timings=d.get("timings", {}),
+            seed=d.get("seed", 0),
+            config=d.get("config", {}),
+            plausibility=d.get("plausibility", {}),
+            meta=d.get("meta", {}),
+        )
+    except InvalidInputError as exc:
+        if str(exc).startswith(("result.json", "hand.ply", "object.ply")):
+            raise
+        raise InvalidInputError(f"result.json: {exc}") from None
+    except (KeyError, TypeError, ValueError) as exc:
         raise InvalidInputError(f"result.json has malformed content: {exc}") from None
