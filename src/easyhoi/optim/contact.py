@@ -18,7 +18,8 @@ depth where it meets the object in the photo (not at the object's centre).
 Loop (Adam, coarse-to-fine phases sharing ``max_iters``):
 
 (a) mask-constrained optimization of ``r`` and ``delta``: soft IoU between the VISIBLE rendered
-    hand (occluded by the object) and M_h;
+    hand (occluded by the object) and M_h, plus ``rotation_prior_weight * ||r||^2`` (keeps the
+    estimator's rotation relative to the camera; 0 in the paper preset);
 (b) at the iterations ``register_at``: first the depth along the rays is re-chosen by
     :func:`scan_scale` (photo occlusions + touching), then contact registration
     (:func:`register_contacts`):
@@ -36,9 +37,9 @@ Loop (Adam, coarse-to-fine phases sharing ``max_iters``):
 Best state: the states from the first registration on compete (before it the depth is not
 yet aligned), including the state right after each depth scan (before its ICP move, which can
 be biased where the two surfaces differ in shape, e.g. a flat palm behind a cylinder); the
-score is ``IoU loss + contact distance``, the contact distance being ``|min_v d(v)|`` over
-the hand vertices in normalised object units (0 when the hand touches the surface without
-penetrating it). Stopping: IoU loss < ``stop_loss`` once every registration
+score is ``IoU loss + rotation prior + contact distance``, the contact distance being
+``|min_v d(v)|`` over the hand vertices in normalised object units (0 when the hand touches
+the surface without penetrating it). Stopping: IoU loss < ``stop_loss`` once every registration
 that fits under ``max_iters`` ran, or ``patience`` iterations without improvement after the last
 registration, or ``max_iters``.
 """
@@ -277,6 +278,11 @@ def _contact_distance(scene: Scene, verts_obj: torch.Tensor, sdf_resolution: int
         return abs(float(scene.sdf(verts_obj, sdf_resolution).min()))
 
 
+def _rot_prior(state: ContactState, cfg: ContactStageConfig) -> torch.Tensor:
+    """``rotation_prior_weight * ||r||^2``: the hand's rotation away from the estimator's."""
+    return cfg.rotation_prior_weight * (state.r**2).sum()
+
+
 def fit_contact(
     scene: Scene,
     state: ContactState,
@@ -321,8 +327,8 @@ def fit_contact(
                     )  # fmt: skip
                     v = state.verts_obj()
                     _, vis, _ = scene.hand_silhouettes(v, cam)
-                    iou_scan = float(soft_iou_loss(vis, masks["hand"]))
-                    loop.offer(iou_scan + _contact_distance(scene, v, sdf_res), state.state(), it)
+                    scan = float(soft_iou_loss(vis, masks["hand"])) + float(_rot_prior(state, cfg))
+                    loop.offer(scan + _contact_distance(scene, v, sdf_res), state.state(), it)
                 D, anchor, info = register_contacts(scene, v, cam, masks, cfg)
                 info["scan_scale_factor"] = state.m / m_before
                 info["iter"] = it
@@ -338,7 +344,7 @@ def fit_contact(
             cdist = _contact_distance(scene, verts.detach(), sdf_res)
             terms = {"iou": float(iou.detach()), "contact_dist": cdist}
             if cfg.rotation_prior_weight > 0:
-                prior = cfg.rotation_prior_weight * (state.r**2).sum()
+                prior = _rot_prior(state, cfg)
                 loss = loss + prior
                 terms["rot_prior"] = float(prior.detach())
             score = float(loss.detach()) + cdist
