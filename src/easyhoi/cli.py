@@ -557,7 +557,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     level = logging.DEBUG if args.verbose else (logging.ERROR if args.quiet else logging.WARNING)
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    # --verbose opens easyhoi's own debug log only; other libraries (matplotlib, numba, ...)
+    # stay at warnings
+    logging.basicConfig(level=max(level, logging.WARNING) if args.verbose else level,
+                        format="%(levelname)s %(name)s: %(message)s")  # fmt: skip
+    logger.setLevel(level)
     try:
         _set_torch_threads()
         return int(args.func(args) or 0)

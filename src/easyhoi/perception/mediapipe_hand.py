@@ -28,8 +28,11 @@ Conventions of the output (:class:`~easyhoi.perception.base.HandDetection`):
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import os
+import sys
 
 import numpy as np
 
@@ -63,6 +66,32 @@ node {
   output_stream: "HANDEDNESS:handedness"
 }
 """
+
+
+@contextlib.contextmanager
+def _quiet_native_stderr():
+    """Silence MediaPipe's native (TFLite / absl) info and warning lines on file descriptor 2.
+
+    They bypass Python logging and would be printed on every run. Kept when easyhoi's debug
+    log is on (``--verbose``) or when stderr has no file descriptor (captured in tests).
+    """
+    if logger.isEnabledFor(logging.DEBUG):
+        yield
+        return
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
 
 
 def roi_from_keypoints(kp: np.ndarray, width: int, height: int) -> tuple[float, ...]:
@@ -249,8 +278,9 @@ class MediaPipeHands:
             ``keypoints2d`` (21, 2) pixels, ``keypoints3d`` (21, 3) metres; empty when no hand.
         """
         image = check_image(image)
-        dets = self._palm_pass(image)
-        if not dets and self.roi_search:
-            dets = self._roi_pass(image)
+        with _quiet_native_stderr():
+            dets = self._palm_pass(image)
+            if not dets and self.roi_search:
+                dets = self._roi_pass(image)
         dets.sort(key=lambda d: -d.score)
         return dets[: self.max_hands]
