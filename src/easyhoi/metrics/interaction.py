@@ -96,10 +96,15 @@ def intersection_volume(
 
 def _signed_depths(hand_vertices: np.ndarray, obj) -> tuple[np.ndarray, np.ndarray]:
     """Unsigned distance (m) of each point to the object surface and an inside mask."""
-    from trimesh.proximity import closest_point
+    import point_cloud_utils as pcu
 
-    _, dist, _ = closest_point(obj, hand_vertices)
-    return np.asarray(dist, dtype=np.float64), inside(obj, hand_vertices)
+    p = np.ascontiguousarray(hand_vertices, dtype=np.float64)
+    if len(p) == 0:
+        return np.zeros(0), np.zeros(0, dtype=bool)
+    v = np.ascontiguousarray(obj.vertices, dtype=np.float64)
+    f = np.ascontiguousarray(obj.faces, dtype=np.int64)
+    dist, _, _ = pcu.closest_points_on_mesh(p, v, f)  # exact point-triangle distances
+    return np.asarray(dist, dtype=np.float64).reshape(-1), inside(obj, hand_vertices)
 
 
 def penetration_depth(hand_mesh, obj_mesh) -> float:
