@@ -20,6 +20,7 @@ object mesh may also be given as ``object.obj`` by hand (read when ``object.ply`
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 from pathlib import Path
@@ -308,29 +309,45 @@ def load_hoi_result(folder: str | Path) -> HOIResult:
         return _load_exported_result(folder)
     d = _read_json(folder / "result.json", RESULT_SCHEMA)
     hand = _read_mesh(folder, "hand", allow_obj=False)
-    try:
+    with _malformed():
         stages = tuple(StageResult.from_dict(s) for s in _field(d, "stages", "result.json"))
-        return HOIResult(
+        return _result_from(
+            d,
             hand_params=_params_from(_field(d, "hand_params", "result.json")),
             camera=_camera_from(_field(d, "camera", "result.json")),
-            hand_vertices=np.asarray(hand.vertices),
-            hand_faces=np.asarray(hand.faces),
+            hand=hand,
             object_mesh=_read_mesh(folder, "object", allow_obj=False),
             metric_scale=_field(d, "metric_scale", "result.json"),
-            hand_model=d.get("hand_model", "open"),
             stages=stages,
-            timings=d.get("timings", {}),
-            seed=d.get("seed", 0),
-            config=d.get("config", {}),
-            plausibility=d.get("plausibility", {}),
-            meta=d.get("meta", {}),
         )
+
+
+@contextlib.contextmanager
+def _malformed():
+    """Turn any error while interpreting ``result.json`` into a named InvalidInputError."""
+    try:
+        yield
     except InvalidInputError as exc:
         if str(exc).startswith(("result.json", "hand.ply", "object.ply")):
             raise
         raise InvalidInputError(f"result.json: {exc}") from None
-    except (TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError) as exc:
         raise InvalidInputError(f"result.json has malformed content: {exc}") from None
+
+
+def _result_from(d: dict, hand, **fields) -> HOIResult:
+    """An HOIResult from the parsed fields plus the optional entries shared by both schemas."""
+    return HOIResult(
+        hand_vertices=np.asarray(hand.vertices, dtype=np.float64),
+        hand_faces=np.asarray(hand.faces),
+        hand_model=d.get("hand_model", "open"),
+        timings=d.get("timings", {}),
+        seed=d.get("seed", 0),
+        config=d.get("config", {}),
+        plausibility=d.get("plausibility", {}),
+        meta=d.get("meta", {}),
+        **fields,
+    )
 
 
 def _schema_of(path: Path) -> str | None:
@@ -357,13 +374,12 @@ def _load_exported_result(folder: Path) -> HOIResult:
         )
     hand = _read_mesh(folder, "hand", allow_obj=False)
     obj = _read_mesh(folder, "object", allow_obj=False)
-    try:
+    with _malformed():
         scale = float(_field(d, "metric_scale", "result.json"))
         if not np.isfinite(scale) or scale <= 0:
             raise InvalidInputError(f"result.json: metric_scale must be positive, got {scale}")
         obj.apply_scale(1.0 / scale)
-        h = _field(d, "hand", "result.json")
-        params = HandParams.from_dict(h, dtype=torch.float64)
+        hand.apply_scale(1.0 / scale)
         stages = tuple(
             StageResult(
                 name=s["name"],
@@ -374,24 +390,12 @@ def _load_exported_result(folder: Path) -> HOIResult:
             )  # fmt: skip
             for s in _field(d, "stages", "result.json")
         )
-        return HOIResult(
-            hand_params=params,
+        return _result_from(
+            d,
+            hand_params=HandParams.from_dict(_field(d, "hand", "result.json"), torch.float64),
             camera=_camera_from(_field(d, "camera_object_units", "result.json")),
-            hand_vertices=np.asarray(hand.vertices, dtype=np.float64) / scale,
-            hand_faces=np.asarray(hand.faces),
+            hand=hand,
             object_mesh=obj,
             metric_scale=scale,
-            hand_model=d.get("hand_model", "open"),
             stages=stages,
-            timings=d.get("timings", {}),
-            seed=d.get("seed", 0),
-            config=d.get("config", {}),
-            plausibility=d.get("plausibility", {}),
-            meta=d.get("meta", {}),
         )
-    except InvalidInputError as exc:
-        if str(exc).startswith(("result.json", "hand.ply", "object.ply")):
-            raise
-        raise InvalidInputError(f"result.json: {exc}") from None
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InvalidInputError(f"result.json has malformed content: {exc}") from None

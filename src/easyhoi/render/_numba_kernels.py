@@ -208,22 +208,23 @@ def zbuffer(tri, tri_z, height, width, out):
 
 
 @numba.njit(cache=True)
-def min_filter(z, radius, out):
-    """``out[i, j] = min z[i-r..i+r, j-r..j+r]`` (clipped at the borders), separable, (H, W)."""
+def _row_min(z, radius, out):
+    """``out[i, j] = min z[i, j-r..j+r]`` (clipped at the borders)."""
     height, width = z.shape
-    tmp = np.empty((height, width))
     for i in range(height):
         for j in range(width):
             m = np.inf
             for d in range(max(j - radius, 0), min(j + radius + 1, width)):
                 m = min(m, z[i, d])
-            tmp[i, j] = m
-    for i in range(height):
-        for j in range(width):
-            m = np.inf
-            for d in range(max(i - radius, 0), min(i + radius + 1, height)):
-                m = min(m, tmp[d, j])
             out[i, j] = m
+
+
+@numba.njit(cache=True)
+def min_filter(z, radius, out):
+    """``out[i, j] = min z[i-r..i+r, j-r..j+r]`` (clipped at the borders), separable, (H, W)."""
+    tmp = np.empty(z.shape)
+    _row_min(z, radius, tmp)
+    _row_min(tmp.T, radius, out.T)  # the column pass is a row pass on the transposes
 
 
 def pair_count(tri: np.ndarray, height: int, width: int, margin: float) -> int:
