@@ -17,6 +17,10 @@ Culling: only pairs (pixel, face) whose pixel centre lies in the face's bounding
 ``log(1 - D)``; the backward pass is analytic (envelope theorem on the closest edge point),
 saving only five numbers per pair.
 
+Kernels (:func:`set_backend`): compiled numba loops by default (``render/_numba_kernels.py``:
+no pair is stored, the backward recomputes them), the vectorized PyTorch kernel below when numba
+is missing (and as the test oracle), or that kernel through ``torch.compile``.
+
 Conventions: coverage is orientation independent, so back faces are included. A face with any
 vertex closer to the camera than ``near`` (camera z, world units) is dropped (no clipping); a mesh
 entirely behind the camera, an empty mesh or a mesh outside the image renders a zero mask.
@@ -187,8 +191,12 @@ def set_backend(name: str) -> None:
         _COMPILED.setdefault("forward", torch.compile(_fused_forward, dynamic=True))
         _COMPILED.setdefault("backward", torch.compile(_fused_backward, dynamic=True))
     else:
-        _COMPILED.pop("forward", None)
-        _COMPILED.pop("backward", None)
+        _drop_compiled()
+
+
+def _drop_compiled() -> None:
+    _COMPILED.pop("forward", None)
+    _COMPILED.pop("backward", None)
 
 
 def set_compile(enabled: bool) -> None:
@@ -212,8 +220,7 @@ def _call(name: str, eager, *args):
             import warnings
 
             warnings.warn(f"torch.compile failed ({exc}); using eager kernels", stacklevel=3)
-            _COMPILED.pop("forward", None)
-            _COMPILED.pop("backward", None)
+            _drop_compiled()
     return eager(*args)
 
 
