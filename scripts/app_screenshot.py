@@ -57,7 +57,8 @@ def standin_reconstruct(image_path, out_dir, config=None, *, seed=0, progress=No
     ``out_dir/<stem>/`` gets ``overlay.png`` (the built-in hand in a grasp pose drawn over the
     photo), ``scene.glb`` (that hand and a box, metres), ``result.json`` (plausibility:
     :data:`STANDIN_PLAUSIBILITY` plus ``hand_mask_iou`` = the hand's share of the overlay's
-    pixels) and ``report.html``. Calls ``say`` once and ``progress`` for three stages.
+    pixels, and a camera facing the hand) and ``report.html``. Calls ``say`` once and
+    ``progress`` for three stages.
     """
     import numpy as np
     import trimesh
@@ -104,7 +105,15 @@ def standin_reconstruct(image_path, out_dir, config=None, *, seed=0, progress=No
     scene = trimesh.Scene({"hand": hand_mesh, "object": box})
     (folder / "scene.glb").write_bytes(scene.export(file_type="glb"))
     plaus = dict(STANDIN_PLAUSIBILITY, hand_mask_iou=round(covered, 4))
-    (folder / "result.json").write_text(json.dumps({"plausibility": plaus, "seed": seed}))
+    # a camera 0.4 m in front of the hand on +z looking back along -z (image up = +y), the
+    # view the overlay's orthographic drawing mimics
+    centre = (lo + hi) / 2
+    cam = {"K": [[s * 0.4, 0, w / 2], [0, s * 0.4, h / 2], [0, 0, 1]],
+           "R": [[1, 0, 0], [0, -1, 0], [0, 0, -1]],
+           "t": [-float(centre[0]), float(centre[1]), float(hand_mesh.bounds.mean(0)[2]) + 0.4],
+           "width": w, "height": h}  # fmt: skip
+    doc = {"plausibility": plaus, "seed": seed, "camera": cam}
+    (folder / "result.json").write_text(json.dumps(doc))
     (folder / "report.html").write_text("<!doctype html><title>stand-in</title><p>stand-in</p>")
     files = [folder / n for n in ("overlay.png", "scene.glb", "result.json", "report.html")]
     return Reconstruction(None, None, {}, files, time.perf_counter() - t0)

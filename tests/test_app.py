@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 from PIL import Image
 
 from easyhoi.app import handle_request, metrics_markdown
@@ -82,6 +83,14 @@ def test_good_photo_gives_overlay_glb_metrics_and_zip(tmp_path):
     assert data[:4] == b"glTF" and int.from_bytes(data[8:12], "little") == len(data)
     gltf = json.loads(data[20 : 20 + int.from_bytes(data[12:16], "little")])
     assert len(gltf["meshes"]) == 2
+    # the viewer's copy: same meshes seen from the photo camera (whose centre is the origin)
+    from easyhoi.viz.viewer import orbit_position
+
+    assert res.view_glb is not None and res.view_glb.parent == res.folder.parents[1]
+    view = trimesh.load(res.view_glb, file_type="glb", force="scene")
+    assert len(view.geometry) == 2
+    lo, hi = view.bounds
+    np.testing.assert_allclose(orbit_position((lo + hi) / 2, *res.camera_position), 0, atol=1e-5)
     # metrics from result.json plus the run facts, and their table
     plaus = res.metrics["plausibility"]
     assert plaus["penetration_depth_cm"] == 0.21 and plaus["in_contact"] is True

@@ -75,6 +75,10 @@ class DemoResult:
         error: one readable sentence when ``ok`` is False (never a traceback), else "".
         overlay: overlay.png of the result folder.
         glb: scene.glb (hand, object and camera, metres).
+        view_glb: a copy of scene.glb in the photo camera's frame for the 3D viewer, or None
+            when it could not be made (the viewer then shows ``glb``).
+        camera_position: ``(alpha, beta, radius)`` of the viewer's first view (the photo's
+            viewpoint), or None; see :mod:`easyhoi.viz.viewer`.
         metrics: plausibility metrics and run facts (JSON-ready).
         metrics_text: ``metrics`` as a Markdown table.
         downloads: files offered for download: the zipped result folder first, then scene.glb
@@ -87,6 +91,8 @@ class DemoResult:
     error: str = ""
     overlay: Path | None = None
     glb: Path | None = None
+    view_glb: Path | None = None
+    camera_position: tuple[float, float, float] | None = None
     metrics: dict = field(default_factory=dict)
     metrics_text: str = ""
     downloads: tuple[Path, ...] = ()
@@ -198,6 +204,22 @@ def _read_metrics(result_json: Path | None, rec) -> dict:
     if not plaus:
         plaus = dict(getattr(getattr(rec, "result", None), "plausibility", None) or {})
     return {"plausibility": plaus}
+
+
+def _photo_view(files: dict, dest: Path):
+    """(view.glb path, (alpha, beta, radius)) seen from the photo's camera, or (None, None)."""
+    from easyhoi.io.atomic import atomic_write_bytes
+    from easyhoi.viz.viewer import photo_view_glb
+
+    try:
+        cam = json.loads(files["result.json"].read_text(encoding="utf-8"))["camera"]
+        data, view = photo_view_glb(files["scene.glb"], cam["R"], cam["t"], cam.get("K"),
+                                    cam.get("height"))  # fmt: skip
+        atomic_write_bytes(dest, data)
+    except (KeyError, TypeError, ValueError, OSError, EasyHOIError) as exc:
+        logger.warning("3D view from the photo's camera unavailable: %s", exc)
+        return None, None
+    return dest, view
 
 
 def handle_request(
@@ -324,12 +346,15 @@ def handle_request(
     if "report.html" in files:
         downloads.append(files["report.html"])
     metrics = _read_metrics(files.get("result.json"), rec)
+    view_glb, camera_position = _photo_view(files, run / "view.glb")
     seconds = time.perf_counter() - t0
     metrics.update(preset=preset, seed=seed_i, seconds=round(seconds, 2))
     return DemoResult(
         ok=True,
         overlay=files["overlay.png"],
         glb=files["scene.glb"],
+        view_glb=view_glb,
+        camera_position=camera_position,
         metrics=metrics,
         metrics_text=metrics_markdown(metrics),
         downloads=tuple(downloads),
@@ -404,7 +429,8 @@ def synthetic_examples(folder: str | Path, seeds: Sequence[int] = (0, 1)) -> lis
 _INTRO = """\
 # EasyHOI: hand + held object from one photo
 Upload a photo of a hand holding an object and press **Run**. The reconstruction runs on this
-machine's CPU: expect minutes, not seconds (about 5 min with the *fast* preset on 2 cores).
+machine's CPU: about half a minute with the *fast* preset on 2 cores, several minutes with
+*paper*.
 Same photo, preset and seed give the same result.
 """
 
@@ -490,8 +516,12 @@ def build_app(
                 None, None, "", None,
                 gr.update(value=f"**{res.error}**", visible=True),
             )  # fmt: skip
+        if res.view_glb is not None:  # first view = the photo's viewpoint
+            view = gr.update(value=str(res.view_glb), camera_position=res.camera_position)
+        else:
+            view = str(res.glb)
         return (
-            str(res.overlay), str(res.glb), res.metrics_text, [str(p) for p in res.downloads],
+            str(res.overlay), view, res.metrics_text, [str(p) for p in res.downloads],
             gr.update(value="", visible=False),
         )  # fmt: skip
 
@@ -523,8 +553,10 @@ def build_app(
                     interactive=False, elem_id="overlay", buttons=["download", "fullscreen"],
                 )  # fmt: skip
                 with gr.Row():
-                    model3d = gr.Model3D(label="3D: hand + object (drag to turn)", height=360,
-                                         elem_id="model3d")  # fmt: skip
+                    model3d = gr.Model3D(
+                        label="3D: hand + object, seen from the photo (drag to turn)",
+                        height=360, elem_id="model3d",
+                    )  # fmt: skip
                     with gr.Column():
                         metrics = gr.Markdown("", elem_id="metrics")
                         downloads = gr.File(label="Downloads", file_count="multiple",
