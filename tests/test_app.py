@@ -90,7 +90,10 @@ def test_good_photo_gives_overlay_glb_metrics_and_zip(tmp_path):
     view = trimesh.load(res.view_glb, file_type="glb", force="scene")
     assert len(view.geometry) == 2
     lo, hi = view.bounds
-    np.testing.assert_allclose(orbit_position((lo + hi) / 2, *res.camera_position), 0, atol=1e-5)
+    centre = (lo + hi) / 2  # the first view looks from the camera centre's direction
+    alpha, beta, _ = res.camera_position
+    np.testing.assert_allclose(orbit_position(centre, alpha, beta, np.linalg.norm(centre)), 0,
+                               atol=1e-5)  # fmt: skip
     # metrics from result.json plus the run facts, and their table
     plaus = res.metrics["plausibility"]
     assert plaus["penetration_depth_cm"] == 0.21 and plaus["in_contact"] is True
