@@ -144,3 +144,19 @@ def test_contact_term_is_rescaled_to_manos_contact_vertex_count(box_scene, hand)
     assert float(two) == pytest.approx(float(one), rel=1e-6)
     with pytest.raises(Exception, match="reference_count"):
         contact_loss(dc, reference_count=0.0)
+
+
+@pytest.mark.parametrize("lr", [1e-3, 4e-3])
+def test_translation_steps_are_in_object_sizes(box_scene, hand, lr):
+    # a hand pushed into the box, only the global pose free, no early stopping: each Adam step
+    # moves every translation coordinate by at most ~lr object sizes (metres: lr * L * m)
+    sc, scene, cfg = box_scene
+    p0, _ = _pushed(sc, scene, hand, 0.006)
+    m, cam = sc.gt_metric_scale, sc.gt_camera.to(torch.float32)
+    rc = replace(cfg.refine, lr_transl=lr, lr_global=1e-6, optimise_pose=False, patience=0,
+                 max_iters=6, resolution_schedule=(1.0,))  # fmt: skip
+    p, res = fit_refine(scene, p0, m, cam, rc, cfg)
+    unit = scene.extent * m  # metres per object size
+    moved = (p.transl - p0.transl).abs().max().item()
+    assert 0.5 * lr * unit < moved <= 6 * lr * unit * 1.01
+    assert res.losses[-1]["penetration"] < res.losses[0]["penetration"]

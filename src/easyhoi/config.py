@@ -186,7 +186,10 @@ class RefineStageConfig:
     """Stage 3: refine the hand's global pose and articulation with the combined loss."""
 
     lr_global: float = 1e-4
-    """Adam learning rate of the global pose phi (rotation, translation)."""
+    """Adam learning rate of the global pose phi: rotation (radians) and translation, the latter
+    in normalised object units (the object's largest side = 1, as the SDF), like stages 1-2."""
+    lr_transl: float | None = None
+    """Separate learning rate of the translation (normalised object units); None = lr_global."""
     lr_pose: float = 1e-2
     """Adam learning rate of the articulation theta."""
     max_iters: int = 1000
@@ -224,6 +227,10 @@ class RefineStageConfig:
 
     def __post_init__(self):
         _positive(self, "lr_global", "lr_pose", "sdf_resolution")
+        if self.lr_transl is not None and not self.lr_transl > 0:
+            raise InvalidInputError(
+                f"RefineStageConfig.lr_transl must be > 0 or None, got {self.lr_transl}"
+            )
         _non_negative(self, "max_iters", "patience", "min_delta")
         _non_negative(
             self, "hand_mask_weight", "penetration_weight", "contact_weight", "reg_weight"
@@ -377,6 +384,8 @@ _FAST = EasyHOIConfig(
             patience=15,
             resolution_schedule=(0.5, 1.0),
             sdf_resolution=48,
+            # 1e-3 of the object's size per step (~1e-4 m for a 10 cm object)
+            lr_transl=1e-3,
             # The paper's balance buries the hand even with the contact sum rescaled to MANO's
             # 115 vertices (contact_reference_count): 10 x the mean penetration is 10 / V per
             # penetrating vertex, 5 x 115 / |C| ~ 2 per contact vertex left outside (fingers

@@ -1,8 +1,12 @@
 """Stage 3, hand parameter refinement: global pose and articulation with the combined loss.
 
-Variables (metric object frame, see :mod:`easyhoi.optim.scene`): ``global_orient`` and ``transl``
-(Adam, ``lr_global``) and the 45 articulation parameters (``lr_pose``); the shape and the metric
-scale ``m`` stay fixed. Object-frame vertices are ``model(params).vertices / m``. The loss is::
+Variables (metric object frame, see :mod:`easyhoi.optim.scene`): ``global_orient`` (Adam,
+``lr_global``), the translation ``transl = transl_0 + (L m) delta`` with ``delta`` in normalised
+object units (``L`` the object's largest side in object units; Adam, ``lr_transl`` or
+``lr_global``: a step of 1e-4 moves the hand by 0.01 % of the object's size, whatever the metric
+scale, as the paper's normalised object frame) and the 45 articulation parameters
+(``lr_pose``); the shape and the metric scale ``m`` stay fixed. Object-frame vertices are
+``model(params).vertices / m``. The loss is::
 
     L = hand_mask_weight   * soft_iou(visible hand, M_h)
       + penetration_weight * (1/V) sum_v max(0, -d(v))      (d below penetration_threshold)
@@ -114,16 +118,20 @@ def fit_refine(
     p0 = params0.detach().to(dtype=dt)
     theta0 = (p0.pose if theta0 is None else theta0.to(dt)).detach().clone()
     go = p0.global_orient.clone().requires_grad_(cfg.optimise_global)
-    tr = p0.transl.clone().requires_grad_(cfg.optimise_global)
+    tr0 = p0.transl.clone()
+    unit = float(scene.extent) * float(metric_scale)  # metres per normalised object unit
+    delta = torch.zeros_like(tr0).requires_grad_(cfg.optimise_global)
     pose = p0.pose.clone().requires_grad_(cfg.optimise_pose)
     groups = []
     if cfg.optimise_global:
-        groups.append({"params": [go, tr], "lr": cfg.lr_global})
+        groups.append({"params": [go], "lr": cfg.lr_global})
+        lr_t = cfg.lr_global if cfg.lr_transl is None else cfg.lr_transl
+        groups.append({"params": [delta], "lr": lr_t})
     if cfg.optimise_pose:
         groups.append({"params": [pose], "lr": cfg.lr_pose})
     opt = torch.optim.Adam(groups) if groups else None
     loop = StageLoop("refine", cfg.max_iters, optim_cfg.history_every, progress)
-    current = lambda: p0.__class__(go, tr, pose, p0.betas, p0.side)  # noqa: E731
+    current = lambda: p0.__class__(go, tr0 + unit * delta, pose, p0.betas, p0.side)  # noqa: E731
     it, stop_reason = 0, "max_iters"
     camera = camera.detach().to(dt)
     sizes = phase_sizes(cfg.max_iters, len(cfg.resolution_schedule)) if opt else [0]
@@ -141,7 +149,7 @@ def fit_refine(
             total = terms["total"]
             plain = {k: float(v.detach()) for k, v in terms.items()}
             loop.record(it, plain)
-            state = (go.detach().clone(), tr.detach().clone(), pose.detach().clone())
+            state = (go.detach().clone(), delta.detach().clone(), pose.detach().clone())
             loop.offer(plain["total"], state, it)
             if patience.exhausted(plain["total"]):
                 phase_reason = "patience"
@@ -155,7 +163,7 @@ def fit_refine(
             it += 1
         if loop.best_state is not None:
             with torch.no_grad():
-                for p, s in zip((go, tr, pose), loop.best_state, strict=True):
+                for p, s in zip((go, delta, pose), loop.best_state, strict=True):
                     p.copy_(s)
         if last_phase:
             stop_reason = phase_reason
