@@ -146,6 +146,19 @@ def test_backend_switch_rejects_unknown_names():
     assert soft.get_backend() in ("numba", "torch")
 
 
+def test_without_numba_auto_falls_back_to_torch(monkeypatch):
+    from easyhoi.render import _common
+
+    v, f = _sphere()
+    cam = _cam()
+    expected = soft_silhouette(v, f, cam)
+    monkeypatch.setitem(_common._NUMBA, "mod", None)  # as if numba failed to import
+    assert soft.get_backend() == "torch"
+    with pytest.raises(InvalidInputError, match="numba"):
+        soft.set_backend("numba")
+    assert_close(soft_silhouette(v, f, cam), expected, atol=1e-7)
+
+
 def test_culling_evaluates_few_pairs():
     v, f = _sphere(sub=4, radius=0.3, dtype=torch.float32)
     cam = _cam(128, 128, focal=150.0, dtype=torch.float32)
