@@ -47,6 +47,8 @@ from easyhoi.optim.scene import (
     StageLoop,
     hard_iou,
     phase_sizes,
+    restore,
+    snapshot,
 )
 from easyhoi.render.soft import soft_silhouette
 from easyhoi.structures import Camera
@@ -182,12 +184,10 @@ class _CameraParams:
         return Camera(K, R, t, c0.width, c0.height)
 
     def state(self) -> tuple[torch.Tensor, ...]:
-        return tuple(p.detach().clone() for p in (self.log_f, self.r, self.delta))
+        return snapshot((self.log_f, self.r, self.delta))
 
     def load(self, state) -> None:
-        with torch.no_grad():
-            for p, s in zip((self.log_f, self.r, self.delta), state, strict=True):
-                p.copy_(s)
+        restore((self.log_f, self.r, self.delta), state)
 
 
 def fit_camera(
@@ -255,12 +255,9 @@ def fit_camera(
             if patience.exhausted(total_v):
                 phase_reason = "patience"
                 break
-            opt.zero_grad(set_to_none=True)
-            total.backward()
-            opt.step()
+            loop.step(opt, total)
             it += 1
-        if loop.best_state is not None:
-            params.load(loop.best_state)
+        loop.restore_best(params.load)
         if last_phase:
             stop_reason = phase_reason
             with torch.no_grad():

@@ -358,12 +358,9 @@ def fit_contact(
                 if patience.exhausted(score):
                     phase_reason = "patience"
                     break
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
+            loop.step(opt, loss)
             it += 1
-        if loop.best_state is not None:
-            state.load(loop.best_state)
+        loop.restore_best(state.load)
         if last_phase:
             stop_reason = phase_reason
             with torch.no_grad():

@@ -34,7 +34,15 @@ import torch
 from easyhoi.config import OptimConfig, RefineStageConfig
 from easyhoi.hoi import StageResult
 from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
-from easyhoi.optim.scene import Patience, Scene, StageLoop, hard_iou, phase_sizes
+from easyhoi.optim.scene import (
+    Patience,
+    Scene,
+    StageLoop,
+    hard_iou,
+    phase_sizes,
+    restore,
+    snapshot,
+)
 from easyhoi.structures import Camera, HandParams
 
 __all__ = ["refine_terms", "fit_refine"]
@@ -122,6 +130,7 @@ def fit_refine(
     unit = float(scene.extent) * float(metric_scale)  # metres per normalised object unit
     delta = torch.zeros_like(tr0).requires_grad_(cfg.optimise_global)
     pose = p0.pose.clone().requires_grad_(cfg.optimise_pose)
+    variables = (go, delta, pose)
     groups = []
     if cfg.optimise_global:
         groups.append({"params": [go], "lr": cfg.lr_global})
@@ -149,22 +158,16 @@ def fit_refine(
             total = terms["total"]
             plain = {k: float(v.detach()) for k, v in terms.items()}
             loop.record(it, plain)
-            state = (go.detach().clone(), delta.detach().clone(), pose.detach().clone())
-            loop.offer(plain["total"], state, it)
+            loop.offer(plain["total"], snapshot(variables), it)
             if patience.exhausted(plain["total"]):
                 phase_reason = "patience"
                 break
             if not total.requires_grad:
                 phase_reason = "no_active_term"
                 break
-            opt.zero_grad(set_to_none=True)
-            total.backward()
-            opt.step()
+            loop.step(opt, total)
             it += 1
-        if loop.best_state is not None:
-            with torch.no_grad():
-                for p, s in zip((go, delta, pose), loop.best_state, strict=True):
-                    p.copy_(s)
+        loop.restore_best(lambda state: restore(variables, state))
         if last_phase:
             stop_reason = phase_reason
             with torch.no_grad():

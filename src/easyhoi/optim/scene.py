@@ -379,3 +379,27 @@ class StageLoop:
 
     def reset_best(self) -> None:
         self.best_score, self.best_state, self.best_iter = math.inf, None, -1
+
+    @staticmethod
+    def step(opt, loss: torch.Tensor) -> None:
+        """One optimizer step on ``loss`` (gradients cleared first)."""
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+
+    def restore_best(self, load) -> None:
+        """``load(best_state)`` when a state was kept (the stage's variables go back to it)."""
+        if self.best_state is not None:
+            load(self.best_state)
+
+
+def snapshot(tensors) -> tuple[torch.Tensor, ...]:
+    """Detached copies of ``tensors``: a state for :meth:`StageLoop.offer`."""
+    return tuple(t.detach().clone() for t in tensors)
+
+
+def restore(tensors, state) -> None:
+    """Copy a :func:`snapshot` back into ``tensors`` in place."""
+    with torch.no_grad():
+        for t, s in zip(tensors, state, strict=True):
+            t.copy_(s)
