@@ -309,6 +309,44 @@ def test_local_pool_survives_a_dying_worker_process(photos, tmp_path):
     assert len(_outputs(tmp_path / "o")) == 4
 
 
+def _echo_worker(task: Task) -> dict:
+    return {"key": task.key}
+
+
+def test_local_pool_recovers_when_the_pool_breaks_between_submissions(monkeypatch):
+    # a worker process that dies while tasks are being submitted makes submit() itself raise
+    # BrokenProcessPool; the batch must restart the pool and still run every task exactly once
+    from concurrent.futures import Future
+    from concurrent.futures.process import BrokenProcessPool
+
+    import easyhoi.distributed as dist
+
+    pools = []
+
+    class FlakyPool:  # runs tasks inline; its third submit finds the pool broken
+        def __init__(self):
+            self.submits = 0
+            pools.append(self)
+
+        def submit(self, fn, *args):
+            self.submits += 1
+            if len(pools) == 1 and self.submits == 3:
+                raise BrokenProcessPool("A child process terminated abruptly")
+            fut = Future()
+            fut.set_result(fn(*args))
+            return fut
+
+        def shutdown(self, wait=True, cancel_futures=False):
+            pass
+
+    monkeypatch.setattr(dist, "_new_pool", lambda workers, threads, ctx: FlakyPool())
+    tasks = [Task(f"p{i}.png", f"p{i}.png", "out", i) for i in range(5)]
+    results = list(dist.execute(tasks, _echo_worker, engine="local", workers=2, threads=1))
+    assert sorted(r.key for r in results) == [t.key for t in tasks]
+    assert all(r.status == "ok" for r in results)
+    assert len(pools) == 2  # the broken pool was replaced once
+
+
 def test_engine_argument_errors(photos, tmp_path):
     images = discover_images(photos)
     with pytest.raises(InvalidInputError, match="engine"):

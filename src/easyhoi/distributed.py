@@ -308,9 +308,22 @@ def _iter_local(
             if pool is None:
                 pool = _new_pool(workers, threads, mp_context)
             source, limit = (suspects, 1) if suspects else (pending, workers)
+            broken_on_submit = False
             while source and len(inflight) < limit:
                 task = source.popleft()
-                inflight[pool.submit(run_task, worker, task, threads)] = task
+                try:
+                    inflight[pool.submit(run_task, worker, task, threads)] = task
+                except BrokenProcessPool:
+                    # a process died between two submissions: the task never started; the
+                    # futures in flight resolve as broken below (or there are none)
+                    source.appendleft(task)
+                    broken_on_submit = True
+                    break
+            if broken_on_submit and not inflight:
+                logger.warning("a batch worker process died; restarting the pool")
+                pool.shutdown(wait=False, cancel_futures=True)
+                pool = None
+                continue
             done, _ = wait(list(inflight), return_when=FIRST_COMPLETED)
             if any(isinstance(f.exception(), BrokenProcessPool) for f in done):
                 # every other future of a broken pool resolves too (result or broken)
