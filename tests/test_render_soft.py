@@ -159,6 +159,35 @@ def test_without_numba_auto_falls_back_to_torch(monkeypatch):
     assert_close(soft_silhouette(v, f, cam), expected, atol=1e-7)
 
 
+def test_a_failing_numba_kernel_warns_and_falls_back_to_torch(monkeypatch):
+    from types import SimpleNamespace
+
+    from numba.core.errors import TypingError
+
+    from easyhoi.render import _common, extend_depth
+    from easyhoi.render.raster import depth_map
+
+    v, f = _sphere()
+    cam = _cam()
+    expected = (soft_silhouette(v, f, cam), depth_map(v, f, cam))
+    z = expected[1].clone()
+
+    def boom(*args):
+        raise TypingError("cannot compile on this machine")
+
+    broken = SimpleNamespace(soft_logsum_forward=boom, zbuffer=boom, min_filter=boom)
+    for call in (lambda: soft_silhouette(v, f, cam), lambda: depth_map(v, f, cam),
+                 lambda: extend_depth(z, 2)):  # fmt: skip
+        monkeypatch.setitem(_common._NUMBA, "mod", broken)
+        monkeypatch.setitem(_common.BACKEND, "name", "auto")
+        with pytest.warns(RuntimeWarning, match="numba kernel .* failed"):
+            out = call()
+        assert soft.get_backend() == "torch"  # disabled for the rest of the process
+        assert torch.isfinite(out).any()
+    assert_close(soft_silhouette(v, f, cam), expected[0], atol=1e-7)
+    assert_close(depth_map(v, f, cam), expected[1], atol=1e-12)
+
+
 def test_culling_evaluates_few_pairs():
     v, f = _sphere(sub=4, radius=0.3, dtype=torch.float32)
     cam = _cam(128, 128, focal=150.0, dtype=torch.float32)

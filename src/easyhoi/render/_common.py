@@ -33,6 +33,34 @@ def numba_kernels():
     return _NUMBA["mod"]
 
 
+def numba_call(name: str, *args) -> bool:
+    """Run the numba kernel ``name``; False (and torch from now on) when numba itself fails.
+
+    A kernel that cannot be compiled or run on this machine (numba / LLVM errors) must not
+    stop a reconstruction: a warning names the failure once, the compiled kernels are
+    disabled for the process (``auto`` resolves to ``torch``) and the caller uses its torch
+    path. Errors that are not numba's propagate.
+    """
+    from numba.core.errors import NumbaError
+
+    try:
+        getattr(numba_kernels(), name)(*args)
+    except NumbaError as exc:
+        import warnings
+
+        warnings.warn(
+            f"numba kernel {name} failed ({type(exc).__name__}: {str(exc)[:200]}); using the "
+            "slower torch kernels",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        _NUMBA["mod"] = None
+        if BACKEND["name"] == "numba":
+            BACKEND["name"] = "auto"
+        return False
+    return True
+
+
 def get_backend() -> str:
     """The soft-silhouette backend in use now (``auto`` resolved to ``numba`` or ``torch``)."""
     name = BACKEND["name"]

@@ -22,7 +22,7 @@ from dataclasses import dataclass, fields, replace
 
 import torch
 
-from easyhoi.render._common import get_backend, numba_kernels
+from easyhoi.render._common import get_backend, numba_call
 from easyhoi.render.raster import depth_map
 from easyhoi.render.soft import (
     DEFAULT_CULL_EPS,
@@ -64,13 +64,14 @@ def extend_depth(z: torch.Tensor, radius: int) -> torch.Tensor:
     A square min-filter of side ``2 radius + 1`` (clipped at the image border), applied only
     where ``z`` is ``inf``; hit pixels keep their depth. No gradient.
     """
+    radius = int(radius)
     if radius <= 0:
         return z
     z = z.detach()
-    if get_backend() == "numba" and z.device.type == "cpu" and z.ndim == 2:
-        zmin = torch.empty_like(z)
-        numba_kernels().min_filter(z.contiguous().numpy(), int(radius), zmin.numpy())
-    else:  # separable max-pool of -z
+    zmin = torch.empty_like(z)
+    use_numba = get_backend() == "numba" and z.device.type == "cpu" and z.ndim == 2
+    if not (use_numba and numba_call("min_filter", z.contiguous().numpy(), radius, zmin.numpy())):
+        # separable max-pool of -z
         m = -z[None, None]
         m = torch.nn.functional.max_pool2d(m, (2 * radius + 1, 1), stride=1, padding=(radius, 0))
         m = torch.nn.functional.max_pool2d(m, (1, 2 * radius + 1), stride=1, padding=(0, radius))

@@ -28,7 +28,7 @@ from easyhoi.render._common import (
     bbox_pairs,
     check_positive,
     get_backend,
-    numba_kernels,
+    numba_call,
     pixel_uv,
     project_faces,
 )
@@ -287,10 +287,10 @@ def depth_map(verts, faces, camera: Camera, near: float = 1e-3) -> torch.Tensor:
     if v.shape[1] and f.shape[0]:
         tri_uv, tri_z, _ = project_faces(v, f, camera, near)
         if get_backend() == "numba" and out.device.type == "cpu":
-            kernels = numba_kernels()
             tri = tri_uv.reshape(-1, 6).contiguous().numpy()
-            kernels.zbuffer(tri, tri_z.contiguous().numpy(), H, W, out.numpy())
-            return out.view(H, W)
+            if numba_call("zbuffer", tri, tri_z.contiguous().numpy(), H, W, out.numpy()):
+                return out.view(H, W)
+            out.fill_(float("inf"))  # the torch path below starts from an empty buffer
         face, pix = bbox_pairs(tri_uv, H, W, 0.0)
         p = pixel_uv(pix, W, H, tri_uv.dtype)
         tri = tri_uv[face]

@@ -40,6 +40,7 @@ from easyhoi.render._common import (
     as_verts,
     check_positive,
     get_backend,
+    numba_call,
     numba_kernels,
     project_faces,
 )
@@ -249,12 +250,12 @@ class _SoftLogSumNumba(torch.autograd.Function):
     @staticmethod
     def forward(ctx, tri_uv, base, height: int, width: int, sigma: float, margin: float,
                 num_pix: int):  # fmt: skip
-        kernels = numba_kernels()
         tri = tri_uv.detach().reshape(-1, 6).contiguous()
         base = base.contiguous()
         out = torch.empty(num_pix, dtype=tri.dtype)
-        kernels.soft_logsum_forward(tri.numpy(), base.numpy(), height, width, 1.0 / sigma,
-                                    margin, num_pix, out.numpy())  # fmt: skip
+        args = (tri.numpy(), base.numpy(), height, width, 1.0 / sigma, margin, num_pix)
+        if not numba_call("soft_logsum_forward", *args, out.numpy()):
+            raise _KernelUnavailable
         ctx.save_for_backward(tri, base)
         ctx.args = (height, width, 1.0 / sigma, margin)
         return out
@@ -264,9 +265,17 @@ class _SoftLogSumNumba(torch.autograd.Function):
         tri, base = ctx.saved_tensors
         grad = torch.empty_like(tri)
         go = grad_out.detach().to(tri.dtype).contiguous()
-        numba_kernels().soft_logsum_backward(tri.numpy(), base.numpy(), *ctx.args, go.numpy(),
-                                              grad.numpy())  # fmt: skip
+        args = (tri.numpy(), base.numpy(), *ctx.args, go.numpy(), grad.numpy())
+        if not numba_call("soft_logsum_backward", *args):
+            raise RuntimeError(
+                "the numba backward kernel failed after its forward ran; the next call uses "
+                "the torch kernels"
+            )
         return grad.view(-1, 3, 2), None, None, None, None, None, None
+
+
+class _KernelUnavailable(Exception):
+    """The numba forward could not run (numba_call warned and switched to torch)."""
 
 
 def soft_silhouette(
@@ -330,9 +339,13 @@ def soft_log_visibility(
         tri_uv, _, keep = project_faces(v, f, camera, near)
         base = torch.div(keep, F, rounding_mode="floor") * (H * W)  # batch offsets
         margin = cull_margin(sigma, cull_eps)
+        logs = None
         if get_backend() == "numba" and tri_uv.device.type == "cpu":
-            logs = _SoftLogSumNumba.apply(tri_uv, base, H, W, sigma, margin, B * H * W)
-        else:
+            try:
+                logs = _SoftLogSumNumba.apply(tri_uv, base, H, W, sigma, margin, B * H * W)
+            except _KernelUnavailable:
+                logs = None
+        if logs is None:
             face, table = _face_table(tri_uv, H, W, margin, base)
             logs = _SoftLogSum.apply(tri_uv, face, table, W, sigma, B * H * W)
         logs = logs.view(B, H, W)
