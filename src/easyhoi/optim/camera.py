@@ -45,6 +45,7 @@ from easyhoi.optim.scene import (
     Patience,
     Scene,
     StageLoop,
+    early_stop,
     hard_iou,
     phase_sizes,
     restore,
@@ -249,11 +250,9 @@ def fit_camera(
             terms["total"] = total_v
             loop.record(it, terms)
             loop.offer(iou_v, params.state(), it)
-            if iou_v < cfg.stop_loss:
-                phase_reason = "stop_loss"
-                break
-            if patience.exhausted(total_v):
-                phase_reason = "patience"
+            reason = early_stop(iou_v, cfg.stop_loss, patience, total_v)
+            if reason:
+                phase_reason = reason
                 break
             loop.step(opt, total)
             it += 1

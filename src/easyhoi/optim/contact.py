@@ -70,6 +70,7 @@ from easyhoi.optim.scene import (
     Scene,
     StageLoop,
     camera_hand_to_object,
+    early_stop,
     hand_in_camera,
     hard_iou,
     move_hand,
@@ -351,13 +352,10 @@ def fit_contact(
             terms["total"] = score
             loop.record(it, terms)
             loop.offer(score, state.state(), it)
-            if not due:
-                if terms["iou"] < cfg.stop_loss:
-                    phase_reason = "stop_loss"
-                    break
-                if patience.exhausted(score):
-                    phase_reason = "patience"
-                    break
+            reason = None if due else early_stop(terms["iou"], cfg.stop_loss, patience, score)
+            if reason:
+                phase_reason = reason
+                break
             loop.step(opt, loss)
             it += 1
         loop.restore_best(state.load)

@@ -393,6 +393,16 @@ class StageLoop:
             load(self.best_state)
 
 
+def early_stop(loss: float, stop_loss: float, patience: Patience, total: float) -> str | None:
+    """``"stop_loss"`` once ``loss < stop_loss``, else ``"patience"`` once ``total`` stopped
+    improving (:meth:`Patience.exhausted`), else None."""
+    if loss < stop_loss:
+        return "stop_loss"
+    if patience.exhausted(total):
+        return "patience"
+    return None
+
+
 def snapshot(tensors) -> tuple[torch.Tensor, ...]:
     """Detached copies of ``tensors``: a state for :meth:`StageLoop.offer`."""
     return tuple(t.detach().clone() for t in tensors)

@@ -136,13 +136,7 @@ def evaluate_hand(truth: _Truth, params: HandParams, m: float, camera, sd_steps:
     t = camera.t.detach().double().numpy() * m
     Vc, Kc = V @ R.T + t, K @ R.T + t
     return {
-        "mpjpe_ra_cm": metrics.mpjpe(K, truth.joints, align="rotation"),
-        "mpvpe_ra_cm": metrics.mpvpe(
-            V, truth.verts, align="rotation", pred_root=K[0], gt_root=truth.joints[0]
-        ),
-        "mpjpe_root_cm": metrics.mpjpe(Kc, truth.joints_cam, align="root"),
-        "mpjpe_cam_cm": metrics.mpjpe(Kc, truth.joints_cam),
-        "mpvpe_cam_cm": metrics.mpvpe(Vc, truth.verts_cam),
+        **_hand_errors(truth, K, V, truth.joints, truth.verts, Kc, Vc),
         "mpjpe_world_cm": metrics.mpjpe(Kw, truth.joints),
         "mpvpe_world_cm": metrics.mpvpe(Vw, truth.verts),
         "sd_cm": sd.displacement,
@@ -160,14 +154,20 @@ def evaluate_hand(truth: _Truth, params: HandParams, m: float, camera, sd_steps:
 def _estimator_hand(truth: _Truth, inp) -> dict:
     """The estimator's hand (camera frame) vs the GT hand in that camera: the "HaMeR" row."""
     V, K = _hand_out(truth.model, inp.hand_params)
+    return _hand_errors(truth, K, V, truth.joints_cam, truth.verts_cam, K, V)
+
+
+def _hand_errors(truth: _Truth, K, V, gt_joints, gt_verts, Kc, Vc) -> dict:
+    """Hand errors shared by every row: rotation-aligned (``K``, ``V`` against the GT
+    ``gt_joints``, ``gt_verts`` of the same frame) and in the camera (``Kc``, ``Vc``)."""
     return {
-        "mpjpe_ra_cm": metrics.mpjpe(K, truth.joints_cam, align="rotation"),
+        "mpjpe_ra_cm": metrics.mpjpe(K, gt_joints, align="rotation"),
         "mpvpe_ra_cm": metrics.mpvpe(
-            V, truth.verts_cam, align="rotation", pred_root=K[0], gt_root=truth.joints_cam[0]
+            V, gt_verts, align="rotation", pred_root=K[0], gt_root=gt_joints[0]
         ),
-        "mpjpe_root_cm": metrics.mpjpe(K, truth.joints_cam, align="root"),
-        "mpjpe_cam_cm": metrics.mpjpe(K, truth.joints_cam),
-        "mpvpe_cam_cm": metrics.mpvpe(V, truth.verts_cam),
+        "mpjpe_root_cm": metrics.mpjpe(Kc, truth.joints_cam, align="root"),
+        "mpjpe_cam_cm": metrics.mpjpe(Kc, truth.joints_cam),
+        "mpvpe_cam_cm": metrics.mpvpe(Vc, truth.verts_cam),
     }
 
 
