@@ -108,3 +108,24 @@ def test_refine_rerun_matches_optimize():
     for name in ("global_orient", "transl", "pose"):
         a, b = getattr(params, name), getattr(res.hand_params, name)
         np.testing.assert_array_equal(a.detach().numpy(), b.detach().numpy())
+
+
+def test_preset_quality_table_flags_fast_and_gt_against_paper():
+    from easyhoi.synth.tables import PRESET_METRICS, preset_quality_table
+
+    def ev(sd, iou):
+        d = {k: 1.0 for k, _ in PRESET_METRICS}
+        d.update(sd_cm=sd, hand_iou=iou)
+        return d
+
+    # paper S.D. 2 cm; fast 2.05 (within 5 % + 0.05) and GT 8 (worse); IoU: fast 0.5 < 0.95 * 0.8
+    rows = [
+        {"stages": {"refine": ev(2.05, 0.5)}, "paper": ev(2.0, 0.8), "ground_truth": ev(8.0, 1.0)},
+        {"stages": {"refine": ev(2.05, 0.5)}, "paper": ev(2.0, 0.8), "ground_truth": ev(8.0, 1.0)},
+    ]
+    lines = {ln.split("|")[1].strip(): ln for ln in preset_quality_table({"scenes": rows})
+             .splitlines()[2:]}  # fmt: skip
+    cells = {k: [c.strip() for c in v.strip("|").split("|")] for k, v in lines.items()}
+    assert cells["sd_cm"] == ["sd_cm", "2.050", "2.000", "no", "8.000", "yes"]
+    assert cells["hand_iou"] == ["hand_iou", "0.500", "0.800", "yes", "1.000", "no"]
+    assert cells["iv_cm3"][3] == "no" and cells["iv_cm3"][5] == "no"

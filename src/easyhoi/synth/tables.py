@@ -160,12 +160,15 @@ def preset_quality_table(report: dict) -> str:
     pr = _paper_rows(report)
     if not pr:
         return "(the paper preset did not run: --paper-scenes 0)"
-    header = ["metric", "fast", "paper", "fast worse by > 5 %"]
+    header = ["metric", "fast", "paper", "fast worse by > 5 %", "GT hand", "GT worse by > 5 %"]
     rows = []
     for k, hb in PRESET_METRICS:
         f = _values([r["stages"]["refine"] for r in pr], k).mean()
         p = _values([r["paper"] for r in pr], k).mean()
-        rows.append([k, f"{f:.3f}", f"{p:.3f}", "yes" if _worse(f, p, hb) else "no"])
+        g = _values([r["ground_truth"] for r in pr], k)
+        g_cells = [f"{g.mean():.3f}", "yes" if _worse(g.mean(), p, hb) else "no"] if len(g) else [
+            "n/a", "n/a"]  # fmt: skip
+        rows.append([k, f"{f:.3f}", f"{p:.3f}", "yes" if _worse(f, p, hb) else "no", *g_cells])
     return _table(header, rows)
 
 
