@@ -279,3 +279,63 @@ def test_compiled_kernels_match_eager():
         soft.set_backend("auto")
     assert_close(results[1][0], results[0][0], atol=1e-5)
     assert_close(results[1][1], results[0][1], atol=1e-3, rtol=1e-4)
+
+
+def test_numba_exp_and_log1p_polynomials_match_libm():
+    kern = pytest.importorskip("easyhoi.render._numba_kernels")
+    y = np.concatenate([np.linspace(0.0, 40.0, 200_001), [1e-300, 1e-12, 1e-6, 39.999]])
+    got = np.array([kern._exp_neg(v) for v in y])
+    ref = np.exp(-y)
+    assert np.max(np.abs(got / ref - 1.0)) < 1e-13
+    assert kern._exp_neg(60.0) == kern._exp_neg(40.0) < 5e-18  # clamped, far below any use
+    z = np.concatenate([np.linspace(0.0, 1.0, 200_001), [1e-300, 1e-17, 1e-9, math.sqrt(2) - 1]])
+    got = np.array([kern._log1p_unit(v) for v in z])
+    ref = np.log1p(z)
+    pos = z > 0
+    assert np.max(np.abs(got[pos] / ref[pos] - 1.0)) < 1e-15
+    assert got[~pos].max() == 0.0
+
+
+def _box_pair_reference(tri, base, H, W, sigma, margin, grad_out):
+    """Culled sum and corner gradient of the numba kernels, from the torch pair kernel."""
+    tri_t = torch.tensor(tri, dtype=F64)
+    face, table = soft._face_table(tri_t.view(-1, 3, 2), H, W, margin, torch.tensor(base))
+    out, pix, coef, rx, ry, t, e = soft._fused_forward(
+        tri_t.t().contiguous(), table, face, W, 1.0 / sigma, int(grad_out.size)
+    )
+    # the numba kernels skip the pairs farther than margin outside the face (coef < 0)
+    val, *_ = soft._pair_kernel(*tri_t[face].t(), (pix % W).double() + 0.5,
+                                (pix // W % H).double() + 0.5, 1.0 / sigma)  # fmt: skip
+    kept = (coef > 0) | (rx * rx + ry * ry <= margin * margin)
+    out = torch.zeros_like(out).index_add_(0, pix[kept], val[kept])
+    grad = soft._fused_backward(torch.tensor(grad_out), face, pix, coef * kept, rx, ry, t, e,
+                                tri.shape[0])  # fmt: skip
+    return out.numpy(), grad.view(-1, 6).numpy()
+
+
+def test_numba_kernels_match_pair_reference_on_blocks_borders_and_batches():
+    kern = pytest.importorskip("easyhoi.render._numba_kernels")
+    rng = np.random.default_rng(3)
+    H, W, B = 23, 37, 2
+    n = 300
+    centre = rng.uniform([-6.0, -6.0], [W + 6.0, H + 6.0], size=(n, 1, 2))
+    size = rng.choice([0.3, 2.0, 7.0, 25.0], size=(n, 1, 1))  # boxes of 1 to ~40 columns
+    tri = (centre + size * rng.uniform(-1, 1, size=(n, 3, 2))).reshape(n, 6)
+    tri[0] = [5.0, 5.0, 5.0, 5.0, 5.0, 5.0]  # degenerate: a point
+    tri[1] = [-3.3, 1.7, W + 2.9, 2.2, W / 2 + 0.37, H + 3.1]  # wider than the image
+    base = rng.integers(0, B, size=n) * (H * W)
+    grad_out = rng.standard_normal(B * H * W)
+    grad_out[::7] = 0.0
+    for sigma in (0.1, 1.0, 3.0):
+        margin = cull_margin(sigma)
+        out = np.empty(B * H * W)
+        grad = np.empty((n, 6))
+        kern.soft_logsum_forward(tri, base, H, W, 1.0 / sigma, margin, B * H * W, out)
+        kern.soft_logsum_backward(tri, base, H, W, 1.0 / sigma, margin, grad_out, grad)
+        ref_out, ref_grad = _box_pair_reference(tri, base, H, W, sigma, margin, grad_out)
+        assert out.min() < -1.0  # covered pixels
+        np.testing.assert_allclose(out, ref_out, rtol=1e-12, atol=1e-13)
+        np.testing.assert_allclose(grad, ref_grad, rtol=1e-10, atol=1e-11 * np.abs(ref_grad).max())
+        again = np.empty((n, 6))
+        kern.soft_logsum_backward(tri, base, H, W, 1.0 / sigma, margin, grad_out, again)
+        assert np.array_equal(grad, again)  # deterministic
