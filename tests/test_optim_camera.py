@@ -9,7 +9,13 @@ import pytest
 import torch
 
 from easyhoi.config import get_preset
-from easyhoi.optim.camera import fit_box, fit_camera, initial_camera
+from easyhoi.optim.camera import (
+    _yaw,
+    candidate_rotations,
+    fit_box,
+    fit_camera,
+    initial_camera,
+)
 from easyhoi.optim.losses import sinkhorn_mask_loss
 from easyhoi.optim.scene import Scene, hard_iou
 from easyhoi.render.raster import depth_map
@@ -72,8 +78,8 @@ def test_camera_recovered_from_perturbed_start(kind, hand):
 def test_initial_camera_from_masks(hand):
     sc, scene, cfg = _setup("box", hand)
     cam, note = initial_camera(scene, cfg.camera, sc.inp.amodal_mask, SIZE)
-    assert note["init"] == "mask_box" and note["yaw_deg"] == 0.0
-    assert len(note["candidates"]) == 4
+    assert note["init"] == "mask_box" and note["rotation"] == "+x+y+z"  # canonical view
+    assert len(note["candidates"]) == 24
     target = scene.masks_at(SIZE, SIZE)["amodal"]
     assert _raster_iou(scene, cam, target) > 0.75
     assert _reprojection(scene, cam, sc.gt_camera) < 4.0
@@ -112,3 +118,41 @@ def test_sinkhorn_gradient_pulls_camera_when_masks_do_not_overlap(hand):
     loss = sinkhorn_mask_loss(sil, target, grid=16)
     loss.backward()
     assert float(shift.grad[0]) > 0  # descent decreases the x shift: back towards the mask
+
+
+def test_candidate_rotations():
+    yaw = candidate_rotations("yaw")
+    cube = candidate_rotations("cube")
+    assert [lab for lab, _ in yaw] == ["yaw 0", "yaw 90", "yaw 180", "yaw 270"]
+    assert len(cube) == 24 and len({lab for lab, _ in cube}) == 24
+    mats = np.stack([R for _, R in cube])
+    eye = np.broadcast_to(np.eye(3), mats.shape)
+    np.testing.assert_allclose(mats @ mats.transpose(0, 2, 1), eye, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(mats), 1.0, atol=1e-12)
+    assert len({tuple(R.ravel()) for R in mats}) == 24  # all distinct: the whole cube group
+    for (_, Ry), (_, Rc) in zip(yaw, cube[:4], strict=True):  # the yaws come first
+        np.testing.assert_allclose(Rc, Ry, atol=1e-12)
+    assert cube[0][0] == "+x+y+z" and cube[1][0] == "+z+y-x"
+    np.testing.assert_allclose(cube[1][1], _yaw(90.0), atol=1e-12)
+
+
+def test_cube_init_finds_a_mesh_given_in_a_rotated_frame(hand):
+    """A scan in its own frame (here: the box turned 90 deg about x and z) is found by "cube"."""
+    from easyhoi.geometry.transforms import axis_angle_to_matrix
+
+    sc, _, cfg = _setup("box", hand)
+
+    def rot(*aa):
+        return axis_angle_to_matrix(torch.tensor(aa, dtype=torch.float64))
+
+    turn = rot(0.0, 0.0, np.pi / 2) @ rot(np.pi / 2, 0.0, 0.0)
+    mesh = sc.inp.object_mesh.copy()
+    mesh.vertices = mesh.vertices @ turn.numpy().T
+    scene = Scene.from_input(replace(sc.inp, object_mesh=mesh), hand, torch.float32)
+    target = scene.masks_at(SIZE, SIZE)["amodal"]
+    ious = {}
+    for kind in ("yaw", "cube"):
+        c = replace(cfg.camera, init_rotations=kind)
+        cam, note = initial_camera(scene, c, sc.inp.amodal_mask, SIZE)
+        ious[kind] = _raster_iou(scene, cam, target)
+    assert ious["cube"] > 0.75 and ious["cube"] > ious["yaw"] + 0.1, ious

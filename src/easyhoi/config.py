@@ -110,6 +110,10 @@ class CameraStageConfig:
     init_from_masks: bool = False
     """Initialise the camera translation so that the object's projected box matches the amodal
     mask's box (False: centred object at init_distance, as the reference implementation)."""
+    init_rotations: str = "yaw"
+    """Rotations tried by init_from_masks: "yaw" (4 yaws of a mesh that faces the camera, as the
+    silhouette reconstructor outputs) or "cube" (the 24 axis-aligned rotations: a mesh in any
+    frame, e.g. a scan)."""
     optimise_focal: bool = True
     """Optimise fx and fy together with the 6-DoF pose (8 DoF); False keeps the focal fixed."""
 
@@ -121,6 +125,11 @@ class CameraStageConfig:
         if not 0 < self.sinkhorn_scaling < 1:
             raise InvalidInputError(
                 f"CameraStageConfig.sinkhorn_scaling must be in (0, 1), got {self.sinkhorn_scaling}"
+            )
+        if self.init_rotations not in ("yaw", "cube"):
+            raise InvalidInputError(
+                f'CameraStageConfig.init_rotations must be "yaw" or "cube", '
+                f"got {self.init_rotations!r}"
             )
         if not self.init_fov_deg < 180:
             raise InvalidInputError(f"init_fov_deg must be < 180, got {self.init_fov_deg}")
@@ -367,6 +376,9 @@ _FAST = EasyHOIConfig(
             resolution_schedule=(0.5, 1.0),
             sinkhorn_grid=16,
             init_from_masks=True,
+            # any mesh frame (synthetic benchmark, 20 scenes with randomly rotated canonical
+            # frames: object IoU 0.789 -> 0.813, MPJPE rotation-aligned 0.82 -> 0.76 cm)
+            init_rotations="cube",
         ),
         contact=ContactStageConfig(
             max_iters=150,

@@ -18,18 +18,22 @@ has vanishing gradients). Adam; coarse-to-fine phases (``resolution_schedule``) 
 iterations; its best state (lowest IoU loss) seeds the next phase and the last phase's best is
 returned.
 
-Initialisation (``init_from_masks``): the mesh's canonical frame is assumed to roughly face the
-camera (x right, y down, z away, as the silhouette reconstructor outputs). For each candidate
-rotation in :data:`CANDIDATE_YAWS` (yaw about the canonical y axis) the distance and the lateral
-offset are solved so that the projected bounding box of the object matches the bounding box of
-M^_o (same centre, same area) at the focal of ``init_fov_deg``; the candidate with the lowest
-soft IoU loss at the first phase's resolution wins (ties keep the earlier candidate, so the
-canonical view is preferred). Without it the camera looks at the object's centre from
-``init_distance`` along +z (the reference implementation's InstantMesh setup).
+Initialisation (``init_from_masks``): for each candidate rotation (``init_rotations``, see
+:func:`candidate_rotations`) the distance and the lateral offset are solved so that the
+projected bounding box of the object matches the bounding box of M^_o (same centre, same area)
+at the focal of ``init_fov_deg``; the candidate with the lowest soft IoU loss at the first
+phase's resolution wins (ties keep the earlier candidate, so the canonical view is preferred).
+``"yaw"`` assumes the mesh's canonical frame roughly faces the camera (x right, y down, z away,
+as the silhouette reconstructor outputs) and tries 4 yaws about its y axis; ``"cube"`` tries the
+24 rotations that map the canonical axes onto the camera's axes (any mesh frame, e.g. a scan:
+every rotation is within 62.8 degrees of one of them). Without ``init_from_masks`` the camera
+looks at the object's centre from ``init_distance`` along +z (the reference implementation's
+InstantMesh setup).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 
@@ -54,13 +58,20 @@ from easyhoi.optim.scene import (
 from easyhoi.render.soft import soft_silhouette
 from easyhoi.structures import Camera
 
-__all__ = ["CANDIDATE_YAWS", "SINKHORN_GATE", "fit_box", "fit_camera", "initial_camera"]
+__all__ = [
+    "CANDIDATE_YAWS",
+    "SINKHORN_GATE",
+    "candidate_rotations",
+    "fit_box",
+    "fit_camera",
+    "initial_camera",
+]
 
 #: The Sinkhorn term is added while the soft IoU loss is above this value (masks barely
 #: overlap); below it the IoU gradient suffices and the (costly) term is skipped.
 SINKHORN_GATE = 0.5
 
-#: Candidate yaw angles (degrees, about the canonical y axis) tried by ``init_from_masks``.
+#: Candidate yaw angles (degrees, about the canonical y axis) of ``init_rotations="yaw"``.
 CANDIDATE_YAWS = (0.0, 90.0, 180.0, 270.0)
 
 #: Fixed-point iterations of :func:`fit_box`.
@@ -123,6 +134,38 @@ def _yaw(deg: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
+def _axes_label(R: np.ndarray) -> str:
+    """Where the camera's x, y, z axes come from, e.g. ``"+x+y+z"`` (identity), ``"-z+y+x"``."""
+    return "".join(
+        ("+" if R[i, int(np.argmax(np.abs(R[i])))] > 0 else "-")
+        + "xyz"[int(np.argmax(np.abs(R[i])))]
+        for i in range(3)
+    )
+
+
+def candidate_rotations(kind: str) -> list[tuple[str, np.ndarray]]:
+    """Camera rotations tried by the mask-box initialisation, canonical view first.
+
+    ``"yaw"``: :data:`CANDIDATE_YAWS` about the canonical y axis, labelled ``"yaw 90"``.
+    ``"cube"``: the 24 proper rotations whose rows are signed canonical axes (the yaws first,
+    in the same order, then the rest in a fixed order), labelled by :func:`_axes_label`.
+    """
+    yaws = [(f"yaw {y:g}", _yaw(y)) for y in CANDIDATE_YAWS]
+    if kind == "yaw":
+        return yaws
+    out = [(_axes_label(R), np.round(R)) for _, R in yaws]
+    seen = {lab for lab, _ in out}
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            R = np.zeros((3, 3))
+            R[[0, 1, 2], list(perm)] = signs
+            label = _axes_label(R)
+            if np.linalg.det(R) > 0 and label not in seen:
+                seen.add(label)
+                out.append((label, R))
+    return out
+
+
 def initial_camera(
     scene: Scene, cfg: CameraStageConfig, amodal_mask: np.ndarray, render_size: int
 ) -> tuple[Camera, dict]:
@@ -145,8 +188,7 @@ def initial_camera(
     h, w = scene.render_size(cfg.resolution_schedule[0], render_size)
     target = scene.masks_at(h, w)["amodal"]
     best, notes = None, []
-    for yaw in CANDIDATE_YAWS:
-        R = _yaw(yaw)
+    for label, R in candidate_rotations(cfg.init_rotations):
         t = fit_box(verts, R, focal, principal, box, c)
         cam = Camera.from_focal(focal, W, H, R=R, t=t, dtype=dtype)
         with torch.no_grad():
@@ -154,10 +196,10 @@ def initial_camera(
                 scene.object_verts, scene.object_faces, cam.resized(w, h), SILHOUETTE_SIGMA
             )
             loss = float(soft_iou_loss(sil, target))
-        notes.append({"yaw_deg": yaw, "iou_loss": loss})
+        notes.append({"rotation": label, "iou_loss": loss})
         if best is None or loss < best[0]:
-            best = (loss, cam, yaw)
-    return best[1], {"init": "mask_box", "yaw_deg": best[2], "candidates": notes}
+            best = (loss, cam, label)
+    return best[1], {"init": "mask_box", "rotation": best[2], "candidates": notes}
 
 
 class _CameraParams:
