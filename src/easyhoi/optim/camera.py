@@ -22,7 +22,8 @@ Initialisation (``init_from_masks``): for each candidate rotation (``init_rotati
 :func:`candidate_rotations`) the distance and the lateral offset are solved so that the
 projected bounding box of the object matches the bounding box of M^_o (same centre, same area)
 at the focal of ``init_fov_deg``; the candidate with the lowest soft IoU loss at the first
-phase's resolution wins (ties keep the earlier candidate, so the canonical view is preferred).
+phase's resolution wins, a later one only when it is lower by more than
+:data:`CANDIDATE_MARGIN` (near-ties keep the earlier candidate: the canonical view is preferred).
 ``"yaw"`` assumes the mesh's canonical frame roughly faces the camera (x right, y down, z away,
 as the silhouette reconstructor outputs) and tries 4 yaws about its y axis; ``"cube"`` tries the
 24 rotations that map the canonical axes onto the camera's axes (any mesh frame, e.g. a scan:
@@ -59,6 +60,7 @@ from easyhoi.render.soft import soft_silhouette
 from easyhoi.structures import Camera
 
 __all__ = [
+    "CANDIDATE_MARGIN",
     "CANDIDATE_YAWS",
     "SINKHORN_GATE",
     "candidate_rotations",
@@ -73,6 +75,10 @@ SINKHORN_GATE = 0.5
 
 #: Candidate yaw angles (degrees, about the canonical y axis) of ``init_rotations="yaw"``.
 CANDIDATE_YAWS = (0.0, 90.0, 180.0, 270.0)
+
+#: A later candidate rotation replaces the best one only if its soft IoU loss is lower by more
+#: than this: near-ties (a cylinder turned about its axis) keep the earlier, canonical view.
+CANDIDATE_MARGIN = 0.02
 
 #: Fixed-point iterations of :func:`fit_box`.
 BOX_FIT_ITERS = 8
@@ -197,7 +203,7 @@ def initial_camera(
             )
             loss = float(soft_iou_loss(sil, target))
         notes.append({"rotation": label, "iou_loss": loss})
-        if best is None or loss < best[0]:
+        if best is None or loss < best[0] - CANDIDATE_MARGIN:
             best = (loss, cam, label)
     return best[1], {"init": "mask_box", "rotation": best[2], "candidates": notes}
 
