@@ -142,11 +142,8 @@ def _yaw(deg: float) -> np.ndarray:
 
 def _axes_label(R: np.ndarray) -> str:
     """Where the camera's x, y, z axes come from, e.g. ``"+x+y+z"`` (identity), ``"-z+y+x"``."""
-    return "".join(
-        ("+" if R[i, int(np.argmax(np.abs(R[i])))] > 0 else "-")
-        + "xyz"[int(np.argmax(np.abs(R[i])))]
-        for i in range(3)
-    )
+    axes = np.argmax(np.abs(R), axis=1)
+    return "".join(("+" if R[i, a] > 0 else "-") + "xyz"[a] for i, a in enumerate(axes))
 
 
 def candidate_rotations(kind: str) -> list[tuple[str, np.ndarray]]:

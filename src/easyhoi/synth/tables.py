@@ -156,6 +156,15 @@ def _worse(fast: float, paper: float, higher_better: bool, tol: float = 0.05) ->
     return fast > paper * (1 + tol) + 0.05
 
 
+def _preset_means(rows: list[dict], key: str) -> tuple[float, float, float]:
+    """Means over the paper scenes of ``key``: fast (final stage), paper, GT hand."""
+    return tuple(
+        float(_values([get(r) for r in rows], key).mean())
+        for get in (lambda r: r["stages"]["refine"], lambda r: r["paper"],
+                    lambda r: r["ground_truth"])
+    )  # fmt: skip
+
+
 def preset_quality_table(report: dict) -> str:
     pr = _paper_rows(report)
     if not pr:
@@ -163,12 +172,9 @@ def preset_quality_table(report: dict) -> str:
     header = ["metric", "fast", "paper", "fast worse by > 5 %", "GT hand", "GT worse by > 5 %"]
     rows = []
     for k, hb in PRESET_METRICS:
-        f = _values([r["stages"]["refine"] for r in pr], k).mean()
-        p = _values([r["paper"] for r in pr], k).mean()
-        g = _values([r["ground_truth"] for r in pr], k)
-        g_cells = [f"{g.mean():.3f}", "yes" if _worse(g.mean(), p, hb) else "no"] if len(g) else [
-            "n/a", "n/a"]  # fmt: skip
-        rows.append([k, f"{f:.3f}", f"{p:.3f}", "yes" if _worse(f, p, hb) else "no", *g_cells])
+        f, p, g = _preset_means(pr, k)
+        rows.append([k, f"{f:.3f}", f"{p:.3f}", "yes" if _worse(f, p, hb) else "no",
+                     f"{g:.3f}", "yes" if _worse(g, p, hb) else "no"])  # fmt: skip
     return _table(header, rows)
 
 
@@ -225,15 +231,7 @@ def goals(report: dict) -> list[dict]:
                 "met": bool(p / f >= 10),
             }
         )
-        worse = [
-            k
-            for k, hb in PRESET_METRICS
-            if _worse(
-                _values([r["stages"]["refine"] for r in pr], k).mean(),
-                _values([r["paper"] for r in pr], k).mean(),
-                hb,
-            )
-        ]
+        worse = [k for k, hb in PRESET_METRICS if _worse(*_preset_means(pr, k)[:2], hb)]
         out.append(
             {
                 "goal": "fast: no metric worse than paper by > 5 %",
