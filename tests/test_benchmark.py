@@ -77,6 +77,8 @@ def test_quick_benchmark_sane_and_deterministic(quick_report, tmp_path):
         # the estimator's articulation is the starting point: error ~1 cm, not 0
         assert 0.2 < row["object_input"]["estimator"]["mpjpe_ra_cm"] < 3
         assert row["timings"]["fast"]["total"] > 0
+        # held scenes (BenchmarkSettings.hold): the GT grasp was checked under image-down gravity
+        assert 0 <= row["gravity_sd_cm"] < 15
     # determinism: one scene evaluated again gives identical numbers
     fast = get_preset("fast").optim
     again = evaluate_scene(scene_specs(1, QUICK.seed)[0], QUICK, fast, None)

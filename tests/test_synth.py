@@ -388,3 +388,29 @@ def test_to_hoi_input_levels(scenes):
     assert np.allclose(M / np.linalg.norm(M[:, 0]), np.eye(3))
     with pytest.raises(InvalidInputError):
         s.to_hoi_input("extreme")
+
+
+def test_scene_hold_turns_the_camera_until_the_grasp_holds():
+    """hold=True: same view direction, camera rolled so that image-down gravity keeps the object
+    in the GT hand (checked by re-running the simulation); without it the same grasp drops it."""
+    from easyhoi.metrics.simulation import simulation_displacement
+    from easyhoi.synth.scene import HOLD_CM
+
+    free = make_scene(0, object_kind="cylinder", grasp_type="power", image_size=64, photo=False)
+    held = make_scene(
+        0, object_kind="cylinder", grasp_type="power", image_size=64, photo=False, hold=True
+    )
+    assert free.gravity_sd_cm is None
+    assert held.gravity_sd_cm is not None and held.gravity_sd_cm <= HOLD_CM
+
+    def drop(scene):
+        g = scene.camera.R.numpy()[1]  # camera +y = image down, in the world
+        return simulation_displacement(scene.hand_mesh, scene.object_mesh, gravity_dir=g)
+
+    assert drop(held).displacement == pytest.approx(held.gravity_sd_cm, abs=1e-9)
+    assert drop(free).displacement > 5.0  # the drawn roll: the object slides out
+    # an in-plane roll: same optical axis, same grasp, similar visible hand area
+    assert np.allclose(free.camera.R.numpy()[2], held.camera.R.numpy()[2], atol=1e-9)
+    assert np.array_equal(free.grasp.vertices, held.grasp.vertices)
+    a, b = free.hand_mask.sum(), held.hand_mask.sum()
+    assert abs(a - b) < 0.15 * a

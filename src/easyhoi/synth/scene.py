@@ -13,7 +13,10 @@ the direction from the object to the hand (so the hand faces the camera) and the
 set so that the forearm (the wrist side of the hand) points towards the bottom of the image
 (+- 60 degrees); the distance makes the pair's bounding box fill 50-70 % of the image, centred.
 Views where less than 40 % of the hand or 30 % of the object is visible are redrawn (up to 6
-draws, then the best is kept).
+draws, then the best is kept). With ``hold=True`` the camera is then turned about its viewing
+axis (30-degree steps, nearest first) until the GT grasp holds the object under gravity along
+the image's down direction (the 35-step simulation moves it at most 1 cm): photos show objects
+that are held, whichever way the hand is turned; an in-plane roll leaves what is visible as is.
 """
 
 from __future__ import annotations
@@ -34,6 +37,10 @@ from easyhoi.synth.photo import SurfaceLayer, object_albedo, shade_photo, skin_t
 
 _KIND_WEIGHTS = (0.25, 0.2, 0.15, 0.2, 0.2)
 _GRASP_WEIGHTS = (0.5, 0.3, 0.2)
+#: ``make_scene(hold=True)``: the grasp "holds" when the object moves at most this far (cm) in
+#: the 35-step simulation under image-down gravity; camera rolls are tried in these steps.
+HOLD_CM = 1.0
+HOLD_ROLL_STEP_DEG = 30.0
 
 
 @dataclass(frozen=True)
@@ -65,6 +72,9 @@ class Scene:
         Seconds per step ("object", "grasp", "camera", "render", "photo", "total").
     hand_model : HandModel
         The model the hand parameters belong to (not compared, not shown).
+    gravity_sd_cm : float or None
+        With ``make_scene(hold=True)``: the GT grasp's simulation displacement (cm) under gravity
+        along the camera's +y (image down), else None.
 
     The arrays are read-only.
     """
@@ -83,6 +93,7 @@ class Scene:
     keypoints_2d: np.ndarray
     timings: dict = field(default_factory=dict)
     hand_model: object = field(default=None, compare=False, repr=False)
+    gravity_sd_cm: float | None = None
 
     def __post_init__(self):
         for name in ("image", "hand_mask", "object_mask", "hand_amodal", "object_amodal", "depth",
@@ -192,6 +203,7 @@ def _visibility(grasp: Grasp, mesh: trimesh.Trimesh, cam: Camera) -> tuple[float
 
 
 def _choose_camera(grasp: Grasp, mesh: trimesh.Trimesh, size: int, rng: np.random.Generator):
+    """The view (most visible of up to 6 draws): ``(camera, view, up, fov_deg, fill)``."""
     hand_c = grasp.vertices.mean(axis=0)
     obj_c = np.asarray(mesh.vertices).mean(axis=0)
     towards_hand = _unit(hand_c - obj_c)
@@ -210,12 +222,45 @@ def _choose_camera(grasp: Grasp, mesh: trimesh.Trimesh, size: int, rng: np.rando
         up = _unit(up)
         roll = rng.uniform(-1.05, 1.05)
         up = _unit(np.cos(roll) * up + np.sin(roll) * np.cross(view, up))
-        cam = frame_camera(points, view, up, rng.uniform(35, 55), rng.uniform(0.5, 0.7), size)
+        fov, fill = rng.uniform(35, 55), rng.uniform(0.5, 0.7)
+        cam = frame_camera(points, view, up, fov, fill, size)
         vh, vo = _visibility(grasp, mesh, cam)
         score = min(vh / 0.4, vo / 0.3)
         if score > best_score:
-            best, best_score = (cam, view, up), score
+            best, best_score = (cam, view, up, fov, fill), score
         if score >= 1.0:
+            break
+    return best
+
+
+def _holding_roll(grasp: Grasp, mesh: trimesh.Trimesh, view, up, fov, fill, size: int):
+    """Turn the camera about its axis until the GT grasp holds under image-down gravity.
+
+    Rolls in steps of :data:`HOLD_ROLL_STEP_DEG`, nearest to the drawn one first; the first whose
+    simulation displacement (35 steps, gravity along the camera's +y) is at most
+    :data:`HOLD_CM` is kept, else the one that moves the object least (an in-plane rotation
+    changes neither visibility nor framing, so the view stays as drawn).
+
+    Returns
+    -------
+    (camera, displacement_cm, roll_deg)
+    """
+    from easyhoi.metrics.simulation import simulation_displacement
+
+    points = np.concatenate([grasp.vertices, np.asarray(mesh.vertices)])
+    hand = (grasp.vertices, grasp.faces)
+    n = int(round(360 / HOLD_ROLL_STEP_DEG))
+    order = [0] + [k * s for k in range(1, n // 2 + 1) for s in (1, -1)]
+    best = None
+    for k in order[:n]:  # 0, 1, -1, 2, -2, ..., 6 (x 30 degrees)
+        a = np.radians(k * HOLD_ROLL_STEP_DEG)
+        up_k = _unit(np.cos(a) * up + np.sin(a) * np.cross(view, up))
+        cam = frame_camera(points, view, up_k, fov, fill, size)
+        gravity = cam.R.numpy()[1]  # camera +y (image down) in the world
+        sd = simulation_displacement(hand, mesh, gravity_dir=gravity).displacement
+        if best is None or sd < best[1]:
+            best = (cam, float(sd), float(k * HOLD_ROLL_STEP_DEG))
+        if sd <= HOLD_CM:
             break
     return best
 
@@ -228,6 +273,7 @@ def make_scene(
     hand_model=None,
     photo: bool = True,
     check_stability: bool = False,
+    hold: bool = False,
 ) -> Scene:
     """Build a synthetic scene.
 
@@ -247,6 +293,10 @@ def make_scene(
         Render the shaded photo (else a flat grey image).
     check_stability : bool
         Run the physics check of the grasp (slow).
+    hold : bool
+        Turn the camera about its viewing axis until the grasp holds the object under gravity
+        along the image's down direction (:func:`_holding_roll`), as in a photo of an object
+        held up; the displacement is kept in ``Scene.gravity_sd_cm``.
 
     Returns
     -------
@@ -274,7 +324,12 @@ def make_scene(
         check_stability=check_stability,
     )  # fmt: skip
     t2 = time.perf_counter()
-    cam, view, up = _choose_camera(grasp, obj.mesh, image_size, rng)
+    cam, view, up, fov, fill = _choose_camera(grasp, obj.mesh, image_size, rng)
+    gravity_sd = None
+    if hold:
+        cam, gravity_sd, roll = _holding_roll(grasp, obj.mesh, view, up, fov, fill, image_size)
+        a = np.radians(roll)
+        up = _unit(np.cos(a) * up + np.sin(a) * np.cross(view, up))
     t3 = time.perf_counter()
     hand = _layer(grasp.vertices, grasp.faces, cam)
     objl = _layer(np.asarray(obj.mesh.vertices), np.asarray(obj.mesh.faces), cam)
@@ -300,7 +355,7 @@ def make_scene(
     timings = {"object": t1 - t0, "grasp": t2 - t1, "camera": t3 - t2, "render": t4 - t3,
                "photo": t5 - t4, "total": t5 - t0}  # fmt: skip
     return Scene(int(seed), obj, grasp, cam, image, hand_vis, obj_vis, h_hit, o_hit, depth,
-                 kp3, kp2, timings, model)  # fmt: skip
+                 kp3, kp2, timings, model, gravity_sd)  # fmt: skip
 
 
 _MODEL = {}
