@@ -151,3 +151,23 @@ def test_move_hand_is_a_rigid_motion_of_the_vertices(side, hand):
     assert q.side == side
     want = hand(p).vertices[0] @ R.T + t
     torch.testing.assert_close(hand(q).vertices[0], want, atol=1e-5, rtol=0)
+
+
+def test_scan_scale_tie_margin_prefers_the_nearest_depth(hand):
+    """Margin 0: the best-scoring depth; a margin covering every candidate: the start depth
+    (factor 1); a margin just above the start's deficit: still the start, just below: not."""
+    from easyhoi.optim.contact import SCALE_SCAN, scan_scale
+
+    sc, scene, cfg, cam = _setup("cylinder", hand, **NOISE)
+    p, m, _ = initial_hand(scene, sc.inp, cam, SIZE)
+    verts = hand(p).vertices[0].detach()
+    m0 = 0.6 * m  # off the object: factor 1 is not the best depth
+    m_best, s_best = scan_scale(scene, verts, cam, m0, 48, SIZE)
+    m_near, s_near = scan_scale(scene, verts, cam, m0, 48, SIZE, tie_margin=10.0)
+    assert abs(m_best / m0 - 1.0) > 0.05 and s_near > s_best
+    assert m_near == pytest.approx(m0, rel=1e-12)  # factor 1.0 is in the scan
+    assert min(SCALE_SCAN, key=lambda f: abs(np.log(f))) == pytest.approx(1.0, rel=1e-12)
+    gap = s_near - s_best
+    assert scan_scale(scene, verts, cam, m0, 48, SIZE, gap + 1e-9)[0] == pytest.approx(m0)
+    m_less, s_less = scan_scale(scene, verts, cam, m0, 48, SIZE, gap - 1e-6)
+    assert m_less != pytest.approx(m0) and s_less <= s_best + gap - 1e-6

@@ -170,11 +170,14 @@ class ContactStageConfig:
     """Weight of ||r||^2, r (radians, axis-angle) the hand's rotation away from the estimator's
     rotation relative to the camera; keeps that rotation while the mask term moves the hand
     (0 = off: rotation driven by the mask alone, the paper)."""
+    scan_tie_margin: float = 0.0
+    """Depth scan (scan_scale): depths scoring within this of the best count as ties and the
+    one nearest the current depth wins (0 = the best score)."""
 
     def __post_init__(self):
         _positive(self, "lr", "peel_layers")
         _non_negative(self, "max_iters", "stop_loss", "patience", "min_delta", "icp_iters")
-        _non_negative(self, "icp_tolerance", "rotation_prior_weight")
+        _non_negative(self, "icp_tolerance", "rotation_prior_weight", "scan_tie_margin")
         _check_schedule(self)
         if any(r < 0 for r in self.register_at) or list(self.register_at) != sorted(
             set(self.register_at)

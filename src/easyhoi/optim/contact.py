@@ -170,29 +170,34 @@ def scan_scale(
     m0: float,
     sdf_resolution: int,
     render_size: int,
+    tie_margin: float = 0.0,
 ) -> tuple[float, float]:
     """1D search of the metric scale along the camera rays around ``m0``.
 
     Every candidate ``m`` in :data:`SCALE_SCAN` times ``m0`` keeps the hand's projection and
     changes only its depth relative to the object. Score: ``(1 - IoU(visible hand, M_h)) +
     |min_v d(v)|`` (hard occlusion at half ``render_size``; d in normalised object units): the
-    depth where the photo's occlusions hold and the hand touches the object's surface.
+    depth where the photo's occlusions hold and the hand touches the object's surface. Where the
+    photo cannot tell depths apart (the hand beside the object touches it at several depths),
+    candidates within ``tie_margin`` of the best score tie and the one nearest ``m0`` (smallest
+    ``|log(m / m0)|``) wins.
 
     Parameters
     ----------
     verts_cam : (V, 3) hand vertices in the object camera frame, metres.
     camera : object camera (full image size).
+    tie_margin : float, score difference that counts as a tie (0: the best score).
 
     Returns
     -------
-    (m, score) of the best candidate.
+    (m, score) of the chosen candidate.
     """
     h, w = scene.render_size(0.5, render_size)
     cam = camera.detach().to(scene.dtype).resized(w, h)
     target = scene.masks_at(h, w)["hand"] > 0.5
     zo = scene.object_depth(cam)
     R, t = cam.R, cam.t
-    best = (m0, math.inf)
+    scored = []
     with torch.no_grad():
         for f in SCALE_SCAN:
             m = m0 * float(f)
@@ -202,9 +207,10 @@ def scan_scale(
             union = int((vis | target).sum())
             iou = float((vis & target).sum()) / union if union else 0.0
             score = (1.0 - iou) + abs(float(scene.sdf(v, sdf_resolution).min()))
-            if score < best[1]:
-                best = (m, score)
-    return best
+            scored.append((score, abs(math.log(f)), m))
+    best = min(s for s, _, _ in scored)
+    score, _, m = min((c for c in scored if c[0] <= best + tie_margin), key=lambda c: c[1])
+    return m, score
 
 
 def initial_hand(
@@ -214,6 +220,7 @@ def initial_hand(
     render_size: int,
     peel_layers: int = 4,
     sdf_resolution: int = 48,
+    tie_margin: float = 0.0,
 ) -> tuple[HandParams, float, dict]:
     """Place the estimator's hand in the object camera (see the module docstring).
 
@@ -262,7 +269,7 @@ def initial_hand(
         m = 1.0
         how = "fallback_unit"
     m_overlap = m
-    m, scan_score = scan_scale(scene, verts, camera, m, sdf_resolution, render_size)
+    m, scan_score = scan_scale(scene, verts, camera, m, sdf_resolution, render_size, tie_margin)
     note = {
         "metric_scale_init": m,
         "metric_scale_overlap": m_overlap,
@@ -324,7 +331,7 @@ def fit_contact(
                     m_before = state.m
                     state.m, _ = scan_scale(
                         scene, state.verts_cam(), state.camera, state.m, sdf_res,
-                        optim_cfg.render_size,
+                        optim_cfg.render_size, cfg.scan_tie_margin,
                     )  # fmt: skip
                     v = state.verts_obj()
                     _, vis, _ = scene.hand_silhouettes(v, cam)

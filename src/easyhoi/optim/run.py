@@ -182,8 +182,9 @@ def _run_stages(inp: HOIInput, scene: Scene, config: OptimConfig, progress, timi
     t = time.perf_counter()
     cam, note = initial_camera(scene, config.camera, inp.amodal_mask, config.render_size)
     p_cam, m, hand_note = initial_hand(
-        scene, inp, cam, config.render_size, config.contact.peel_layers
-    )
+        scene, inp, cam, config.render_size, config.contact.peel_layers,
+        tie_margin=config.contact.scan_tie_margin,
+    )  # fmt: skip
     params = camera_hand_to_object(p_cam, cam, m, scene.hand_model)
     stages.append(
         StageResult(
@@ -205,8 +206,9 @@ def _run_stages(inp: HOIInput, scene: Scene, config: OptimConfig, progress, timi
             raise _stage_error("camera", exc) from exc
         # the hand placement follows the new camera (same pixels, new focal)
         p_cam, m, hand_note = initial_hand(
-            scene, inp, cam, config.render_size, config.contact.peel_layers
-        )
+            scene, inp, cam, config.render_size, config.contact.peel_layers,
+            tie_margin=config.contact.scan_tie_margin,
+        )  # fmt: skip
         params = camera_hand_to_object(p_cam, cam, m, scene.hand_model)
         stages.append(replace(res, hand_params=params, metric_scale=m,
                               extra={**res.extra, "hand": hand_note}))  # fmt: skip
