@@ -19,7 +19,8 @@ ground truth:
 Units and frames of every number (:func:`evaluate_hand`): hands are compared in the GT world
 frame (metres, the object's metric frame) after mapping the result's object frame with the GT
 similarity (``canonical_from_world``): a metric-scale error therefore shows up as a hand error.
-S.D. (cm) uses gravity along +y of the GT camera mapped to the object frame; I.V. (cm^3) and
+S.D. (cm) uses gravity along +y of the GT camera mapped to the object frame (scenes are built
+with ``hold=True``: the camera rolled so that the GT grasp holds under it); I.V. (cm^3) and
 penetration (cm) are measured between the hand and the input object at the result's metric
 scale; mask IoUs compare hard renders at the preset's ``render_size`` with the GT masks.
 Tables: :mod:`easyhoi.synth.tables`.
