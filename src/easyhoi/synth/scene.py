@@ -140,6 +140,11 @@ def _random_unit(rng: np.random.Generator) -> np.ndarray:
     return _unit(rng.normal(size=3))
 
 
+def _roll(up: np.ndarray, view: np.ndarray, angle: float) -> np.ndarray:
+    """``up`` turned by ``angle`` radians about the viewing direction."""
+    return _unit(np.cos(angle) * up + np.sin(angle) * np.cross(view, up))
+
+
 def frame_camera(points: np.ndarray, view_dir, up, fov_deg: float, fill: float, size: int):
     """Camera looking along ``-view_dir`` at ``points`` so that their box fills ``fill``.
 
@@ -220,8 +225,7 @@ def _choose_camera(grasp: Grasp, mesh: trimesh.Trimesh, size: int, rng: np.rando
             up = _random_unit(rng)
             up = up - (up @ view) * view
         up = _unit(up)
-        roll = rng.uniform(-1.05, 1.05)
-        up = _unit(np.cos(roll) * up + np.sin(roll) * np.cross(view, up))
+        up = _roll(up, view, rng.uniform(-1.05, 1.05))
         fov, fill = rng.uniform(35, 55), rng.uniform(0.5, 0.7)
         cam = frame_camera(points, view, up, fov, fill, size)
         vh, vo = _visibility(grasp, mesh, cam)
@@ -243,7 +247,7 @@ def _holding_roll(grasp: Grasp, mesh: trimesh.Trimesh, view, up, fov, fill, size
 
     Returns
     -------
-    (camera, displacement_cm, roll_deg)
+    (camera, displacement_cm, up): ``up`` the world direction now shown as image up.
     """
     from easyhoi.metrics.simulation import simulation_displacement
 
@@ -253,13 +257,12 @@ def _holding_roll(grasp: Grasp, mesh: trimesh.Trimesh, view, up, fov, fill, size
     order = [0] + [k * s for k in range(1, n // 2 + 1) for s in (1, -1)]
     best = None
     for k in order[:n]:  # 0, 1, -1, 2, -2, ..., 6 (x 30 degrees)
-        a = np.radians(k * HOLD_ROLL_STEP_DEG)
-        up_k = _unit(np.cos(a) * up + np.sin(a) * np.cross(view, up))
+        up_k = _roll(up, view, np.radians(k * HOLD_ROLL_STEP_DEG))
         cam = frame_camera(points, view, up_k, fov, fill, size)
         gravity = cam.R.numpy()[1]  # camera +y (image down) in the world
         sd = simulation_displacement(hand, mesh, gravity_dir=gravity).displacement
         if best is None or sd < best[1]:
-            best = (cam, float(sd), float(k * HOLD_ROLL_STEP_DEG))
+            best = (cam, float(sd), up_k)
         if sd <= HOLD_CM:
             break
     return best
@@ -327,9 +330,7 @@ def make_scene(
     cam, view, up, fov, fill = _choose_camera(grasp, obj.mesh, image_size, rng)
     gravity_sd = None
     if hold:
-        cam, gravity_sd, roll = _holding_roll(grasp, obj.mesh, view, up, fov, fill, image_size)
-        a = np.radians(roll)
-        up = _unit(np.cos(a) * up + np.sin(a) * np.cross(view, up))
+        cam, gravity_sd, up = _holding_roll(grasp, obj.mesh, view, up, fov, fill, image_size)
     t3 = time.perf_counter()
     hand = _layer(grasp.vertices, grasp.faces, cam)
     objl = _layer(np.asarray(obj.mesh.vertices), np.asarray(obj.mesh.faces), cam)
