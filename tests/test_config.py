@@ -73,8 +73,10 @@ def test_fast_preset_is_default_and_cheaper():
         0.1,
     )
     assert (r.lr_global, r.lr_pose) == (1e-4, 1e-2)
-    # fast keeps the learning rates; its weights are rebalanced for a dense hand mesh
-    assert (f.optim.refine.lr_global, f.optim.refine.lr_pose) == (1e-4, 1e-2)
+    # fast keeps the global learning rate, takes smaller articulation steps (the depth scan's
+    # contact band puts the hand where noisy fingers collide); weights rebalanced for a dense mesh
+    assert (f.optim.refine.lr_global, f.optim.refine.lr_pose) == (1e-4, 3e-3)
+    assert (p.optim.contact.scan_band, f.optim.contact.scan_band) == (0.0, 0.02)
     assert f.optim.refine.penetration_weight > r.penetration_weight
     assert f.perception == PerceptionConfig() and f.hand_model == "open"
     assert f.perception.hand == "mediapipe" and f.perception.object == "silhouette"

@@ -163,6 +163,15 @@ class ContactState:
         return {"scale_factor": 1.0 / k, "shift_m": float(np.linalg.norm(shift))}
 
 
+def _touch(scene: Scene, verts_obj: torch.Tensor, sdf_resolution: int, band: float) -> float:
+    """Touching term of the depth scan and the stage's score (see :func:`scan_scale`)."""
+    with torch.no_grad():
+        d = scene.sdf(verts_obj, sdf_resolution)
+        if band > 0:
+            return float(d[scene.regions.contact_vertices].abs().clamp_max(band).mean()) / band
+        return abs(float(d.min()))
+
+
 def scan_scale(
     scene: Scene,
     verts_cam: torch.Tensor,
@@ -171,13 +180,18 @@ def scan_scale(
     sdf_resolution: int,
     render_size: int,
     tie_margin: float = 0.0,
+    band: float = 0.0,
 ) -> tuple[float, float]:
     """1D search of the metric scale along the camera rays around ``m0``.
 
     Every candidate ``m`` in :data:`SCALE_SCAN` times ``m0`` keeps the hand's projection and
-    changes only its depth relative to the object. Score: ``(1 - IoU(visible hand, M_h)) +
-    |min_v d(v)|`` (hard occlusion at half ``render_size``; d in normalised object units): the
-    depth where the photo's occlusions hold and the hand touches the object's surface. Where the
+    changes only its depth relative to the object (and so the hand's size relative to it).
+    Score: ``(1 - IoU(visible hand, M_h))`` (hard occlusion at half ``render_size``) plus a
+    touching term, d the object SDF in normalised object units: with ``band = 0``,
+    ``|min_v d(v)|`` (some hand vertex on the surface); with ``band > 0``, the mean over the
+    contact-zone vertices of ``min(|d(v)|, band) / band`` (the palmar contact zones lie on the
+    surface: too shallow they float, too deep they sink in; one touching fingertip is not
+    enough). The depth where the photo's occlusions hold and the hand grasps the surface. Where the
     photo cannot tell depths apart (the hand beside the object touches it at several depths),
     candidates within ``tie_margin`` of the best score tie and the one nearest ``m0`` (smallest
     ``|log(m / m0)|``) wins.
@@ -187,6 +201,7 @@ def scan_scale(
     verts_cam : (V, 3) hand vertices in the object camera frame, metres.
     camera : object camera (full image size).
     tie_margin : float, score difference that counts as a tie (0: the best score).
+    band : float, width of the contact band (normalised object units; 0: closest vertex).
 
     Returns
     -------
@@ -206,7 +221,7 @@ def scan_scale(
             vis = torch.isfinite(zh) & (zh <= zo)
             union = int((vis | target).sum())
             iou = float((vis & target).sum()) / union if union else 0.0
-            score = (1.0 - iou) + abs(float(scene.sdf(v, sdf_resolution).min()))
+            score = (1.0 - iou) + _touch(scene, v, sdf_resolution, band)
             scored.append((score, abs(math.log(f)), m))
     best = min(s for s, _, _ in scored)
     score, _, m = min((c for c in scored if c[0] <= best + tie_margin), key=lambda c: c[1])
@@ -221,6 +236,7 @@ def initial_hand(
     peel_layers: int = 4,
     sdf_resolution: int = 48,
     tie_margin: float = 0.0,
+    band: float = 0.0,
 ) -> tuple[HandParams, float, dict]:
     """Place the estimator's hand in the object camera (see the module docstring).
 
@@ -269,7 +285,9 @@ def initial_hand(
         m = 1.0
         how = "fallback_unit"
     m_overlap = m
-    m, scan_score = scan_scale(scene, verts, camera, m, sdf_resolution, render_size, tie_margin)
+    m, scan_score = scan_scale(
+        scene, verts, camera, m, sdf_resolution, render_size, tie_margin, band
+    )
     note = {
         "metric_scale_init": m,
         "metric_scale_overlap": m_overlap,
@@ -279,11 +297,6 @@ def initial_hand(
         "focal_ratio": k,
     }
     return p_oc, m, note
-
-
-def _contact_distance(scene: Scene, verts_obj: torch.Tensor, sdf_resolution: int) -> float:
-    with torch.no_grad():
-        return abs(float(scene.sdf(verts_obj, sdf_resolution).min()))
 
 
 def _rot_prior(state: ContactState, cfg: ContactStageConfig) -> torch.Tensor:
@@ -331,12 +344,12 @@ def fit_contact(
                     m_before = state.m
                     state.m, _ = scan_scale(
                         scene, state.verts_cam(), state.camera, state.m, sdf_res,
-                        optim_cfg.render_size, cfg.scan_tie_margin,
+                        optim_cfg.render_size, cfg.scan_tie_margin, cfg.scan_band,
                     )  # fmt: skip
                     v = state.verts_obj()
                     _, vis, _ = scene.hand_silhouettes(v, cam)
                     scan = float(soft_iou_loss(vis, masks["hand"])) + float(_rot_prior(state, cfg))
-                    loop.offer(scan + _contact_distance(scene, v, sdf_res), state.state(), it)
+                    loop.offer(scan + _touch(scene, v, sdf_res, 0.0), state.state(), it)
                 D, anchor, info = register_contacts(scene, v, cam, masks, cfg)
                 info["scan_scale_factor"] = state.m / m_before
                 info["iter"] = it
@@ -349,7 +362,7 @@ def fit_contact(
             _, visible, _ = scene.hand_silhouettes(verts, cam)
             iou = soft_iou_loss(visible, masks["hand"])
             loss = iou
-            cdist = _contact_distance(scene, verts.detach(), sdf_res)
+            cdist = _touch(scene, verts.detach(), sdf_res, 0.0)
             terms = {"iou": float(iou.detach()), "contact_dist": cdist}
             if cfg.rotation_prior_weight > 0:
                 prior = _rot_prior(state, cfg)
@@ -372,7 +385,7 @@ def fit_contact(
                 _, visible, _ = scene.hand_silhouettes(state.verts_obj(), cam)
                 final_iou = hard_iou(visible, masks["hand"])
     with torch.no_grad():
-        cdist = _contact_distance(scene, state.verts_obj(), sdf_res)
+        cdist = _touch(scene, state.verts_obj(), sdf_res, 0.0)
     extra = {
         "registrations": registrations,
         "final_mask_iou": final_iou,

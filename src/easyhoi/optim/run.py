@@ -184,6 +184,7 @@ def _run_stages(inp: HOIInput, scene: Scene, config: OptimConfig, progress, timi
     p_cam, m, hand_note = initial_hand(
         scene, inp, cam, config.render_size, config.contact.peel_layers,
         tie_margin=config.contact.scan_tie_margin,
+        band=config.contact.scan_band,
     )  # fmt: skip
     params = camera_hand_to_object(p_cam, cam, m, scene.hand_model)
     stages.append(
@@ -208,6 +209,7 @@ def _run_stages(inp: HOIInput, scene: Scene, config: OptimConfig, progress, timi
         p_cam, m, hand_note = initial_hand(
             scene, inp, cam, config.render_size, config.contact.peel_layers,
             tie_margin=config.contact.scan_tie_margin,
+            band=config.contact.scan_band,
         )  # fmt: skip
         params = camera_hand_to_object(p_cam, cam, m, scene.hand_model)
         stages.append(replace(res, hand_params=params, metric_scale=m,
