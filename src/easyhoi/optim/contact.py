@@ -13,7 +13,10 @@ the ratio of focal lengths); ``m`` is the median ratio of the hand's metric dept
 object's depth (object units) over the pixels where the rendered hand overlaps M^_o, taking the
 object's FRONT surface where M_h shows the hand (the hand is in front there) and its BACK
 surface (farthest of ``peel_layers`` hits) where the hand is hidden: the hand is put at the
-depth where it meets the object in the photo (not at the object's centre).
+depth where it meets the object in the photo (not at the object's centre). That depth is then
+refined by :func:`scan_scale` (41 depths from 1/2 to 2 times it, scored by the hand-mask IoU
+plus a touching term: the closest vertex on the surface, or with ``scan_band`` > 0 the
+contact zones on the surface).
 
 Loop (Adam, coarse-to-fine phases sharing ``max_iters``):
 
