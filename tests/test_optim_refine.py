@@ -39,14 +39,17 @@ def test_refine_removes_penetration(kind, hand):
     sc = make_scene(kind, size=SIZE)
     scene = Scene.from_input(sc.inp, hand, torch.float32)
     cfg = replace(get_preset("fast").optim, render_size=SIZE)
-    p0, _ = _pushed(sc, scene, hand, 0.006)
+    # 1 cm in: the fast preset's grasp settles pressing ~1-2 mm into the object (its
+    # penetration weight lets a grasp press, as a held object needs), so the start is deeper
+    p0, _ = _pushed(sc, scene, hand, 0.01)
     m, cam = sc.gt_metric_scale, sc.gt_camera.to(torch.float32)
     before = plausibility(scene, p0, m, cam, SIZE)
     p, res = fit_refine(scene, p0, m, cam, cfg.refine, cfg)
     after = plausibility(scene, p, m, cam, SIZE)
     assert before["penetration_depth_cm"] > 0.15 and before["intersection_volume_cm3"] > 0
     assert after["penetration_depth_cm"] < 0.5 * before["penetration_depth_cm"]
-    assert after["intersection_volume_cm3"] <= before["intersection_volume_cm3"]
+    assert after["penetration_depth_cm"] < 0.25
+    assert after["intersection_volume_cm3"] < before["intersection_volume_cm3"]
     assert after["in_contact"]
     assert after["hand_mask_iou"] > 0.8
     assert after["hand_mask_iou"] >= before["hand_mask_iou"] - 0.02
@@ -151,7 +154,9 @@ def test_translation_steps_are_in_object_sizes(box_scene, hand, lr):
     # a hand pushed into the box, only the global pose free, no early stopping: each Adam step
     # moves every translation coordinate by at most ~lr object sizes (metres: lr * L * m)
     sc, scene, cfg = box_scene
-    p0, _ = _pushed(sc, scene, hand, 0.006)
+    # 1 cm in: the fast preset's grasp settles pressing ~1-2 mm into the object (its
+    # penetration weight lets a grasp press, as a held object needs), so the start is deeper
+    p0, _ = _pushed(sc, scene, hand, 0.01)
     m, cam = sc.gt_metric_scale, sc.gt_camera.to(torch.float32)
     rc = replace(cfg.refine, lr_transl=lr, lr_global=1e-6, optimise_pose=False, patience=0,
                  max_iters=6, resolution_schedule=(1.0,))  # fmt: skip
