@@ -128,6 +128,27 @@ def test_preset_quality_table_flags_fast_and_gt_against_paper():
     lines = {ln.split("|")[1].strip(): ln for ln in preset_quality_table({"scenes": rows})
              .splitlines()[2:]}  # fmt: skip
     cells = {k: [c.strip() for c in v.strip("|").split("|")] for k, v in lines.items()}
-    assert cells["sd_cm"] == ["sd_cm", "2.050", "2.000", "no", "8.000", "yes"]
-    assert cells["hand_iou"] == ["hand_iou", "0.500", "0.800", "yes", "1.000", "no"]
-    assert cells["iv_cm3"][3] == "no" and cells["iv_cm3"][5] == "no"
+    # identical scenes: every resample gives the same ratio, so the interval is a point
+    assert cells["sd_cm"] == ["sd_cm", "2.050", "2.000", "no", "1.02 (1.02-1.02)", "8.000", "yes"]
+    assert cells["hand_iou"] == ["hand_iou", "0.500", "0.800", "yes", "0.62 (0.62-0.62)",
+                                 "1.000", "no"]  # fmt: skip
+    assert cells["iv_cm3"][3] == "no" and cells["iv_cm3"][6] == "no"
+
+
+def test_ratio_interval_matches_a_naive_paired_bootstrap():
+    from easyhoi.synth.tables import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, ratio_interval
+
+    rng = np.random.default_rng(3)
+    fast, paper = rng.exponential(4.0, 12), rng.exponential(3.5, 12)
+    r, lo, hi = ratio_interval(fast, paper)
+    # naive: one resample at a time, the same index draws, the pairs kept together
+    idx = np.random.default_rng(BOOTSTRAP_SEED).integers(0, 12, size=(BOOTSTRAP_RESAMPLES, 12))
+    naive = sorted(sum(fast[i] for i in row) / sum(paper[i] for i in row) for row in idx.tolist())
+    assert r == pytest.approx(fast.sum() / paper.sum(), rel=1e-12)
+    assert lo == pytest.approx(np.quantile(naive, 0.025), rel=1e-9)
+    assert hi == pytest.approx(np.quantile(naive, 0.975), rel=1e-9)
+    assert lo < r < hi and hi - lo > 0.2  # 12 noisy scenes: a wide interval
+    # pairing: fast = 1.1 x paper scene by scene -> the ratio of every resample is exactly 1.1
+    r2, lo2, hi2 = ratio_interval(1.1 * paper, paper)
+    assert (r2, lo2, hi2) == pytest.approx((1.1, 1.1, 1.1), rel=1e-12)
+    assert all(np.isnan(ratio_interval(np.ones(3), np.zeros(3))))

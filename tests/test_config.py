@@ -77,6 +77,7 @@ def test_fast_preset_is_default_and_cheaper():
     # contact band puts the hand where noisy fingers collide); weights rebalanced for a dense mesh
     assert (f.optim.refine.lr_global, f.optim.refine.lr_pose) == (1e-4, 3e-3)
     assert (p.optim.contact.scan_band, f.optim.contact.scan_band) == (0.0, 0.02)
+    assert (r.penetration_weight, f.optim.refine.penetration_weight) == (10.0, 2000.0)
     assert f.optim.refine.penetration_weight > r.penetration_weight
     assert f.perception == PerceptionConfig() and f.hand_model == "open"
     assert f.perception.hand == "mediapipe" and f.perception.object == "silhouette"
