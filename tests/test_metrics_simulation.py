@@ -153,3 +153,48 @@ def test_bad_inputs():
         simulation_displacement(_far_hand(), (v, ball.faces))
     with pytest.raises(InvalidInputError, match="empty"):
         simulation_displacement((np.zeros((0, 3)), np.zeros((0, 3), int)), ball)
+
+
+def test_gravity_cone_directions():
+    from easyhoi.metrics.simulation import gravity_cone
+
+    g = np.array([0.3, 2.0, -0.5])
+    d = gravity_cone(g, tilt_deg=10.0, azimuths=6)
+    assert d.shape == (7, 3)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+    gu = g / np.linalg.norm(g)
+    np.testing.assert_allclose(d[0], gu, atol=1e-12)
+    angles = np.degrees(np.arccos(np.clip(d[1:] @ gu, -1, 1)))
+    np.testing.assert_allclose(angles, 10.0, atol=1e-9)
+    # evenly spaced azimuths: consecutive tilted directions 60 degrees apart about g
+    p = d[1:] - np.outer(d[1:] @ gu, gu)
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    steps = np.degrees(np.arccos(np.clip(np.sum(p * np.roll(p, -1, axis=0), axis=1), -1, 1)))
+    np.testing.assert_allclose(steps, 60.0, atol=1e-9)
+    np.testing.assert_array_equal(gravity_cone(g, 10.0, 6), d)  # deterministic
+    assert gravity_cone(g, 0.0, 0).shape == (1, 3)
+    for bad in (dict(tilt_deg=90.0), dict(tilt_deg=-1.0), dict(azimuths=-1)):
+        with pytest.raises(InvalidInputError):
+            gravity_cone(g, **bad)
+    with pytest.raises(InvalidInputError, match="gravity_dir"):
+        gravity_cone((0, 0, 0))
+
+
+def test_cone_displacement_is_the_mean_over_the_cone():
+    from easyhoi.metrics.simulation import cone_displacement, gravity_cone
+
+    # free fall: every direction falls the same exact distance
+    n = 35
+    exact = G * DT**2 * n * (n + 1) / 2 * 100
+    mean, per = cone_displacement(_far_hand(), _ball(), tilt_deg=20.0, azimuths=4,
+                                  steps=n, linear_damping=0.0)  # fmt: skip
+    assert len(per) == 5
+    np.testing.assert_allclose(per, exact, rtol=1e-6)
+    # a ball in a bowl: each entry is the single-direction simulation along that direction
+    bowl = _bowl(0.05)
+    ball = _ball(0.015, centre=(0, 0.05 - 0.015 - 0.002, 0))
+    mean, per = cone_displacement(bowl, ball, tilt_deg=15.0, azimuths=3)
+    dirs = gravity_cone((0.0, 1.0, 0.0), 15.0, 3)
+    naive = [simulation_displacement(bowl, ball, gravity_dir=d).displacement for d in dirs]
+    np.testing.assert_allclose(per, naive, rtol=1e-9, atol=1e-9)
+    assert mean == pytest.approx(np.mean(naive)) and mean < 1.0

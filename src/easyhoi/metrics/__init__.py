@@ -24,8 +24,10 @@ from easyhoi.metrics.simulation import (
     SimResult,
     VHACDParams,
     clear_memory_cache,
+    cone_displacement,
     convex_decomposition,
     default_cache_dir,
+    gravity_cone,
     simulation_displacement,
 )
 
@@ -51,4 +53,6 @@ __all__ = [
     "penetration_depth",
     "sample_surface",
     "simulation_displacement",
+    "cone_displacement",
+    "gravity_cone",
 ]

@@ -18,6 +18,10 @@ from easyhoi import metrics
 from easyhoi.config import OptimConfig
 from easyhoi.structures import HandParams
 
+#: Gravity cone of ``sd_cone_cm``: tilt from the image-down direction (degrees) and azimuths.
+SD_CONE_TILT_DEG = 10.0
+SD_CONE_AZIMUTHS = 6
+
 __all__ = [
     "evaluate_hand",
     "gt_hand_state",
@@ -113,9 +117,12 @@ def evaluate_hand(truth: _Truth, params: HandParams, m: float, camera, sd_steps:
     * ``mpjpe_world_cm`` / ``mpvpe_world_cm``: world (object) frame after the GT similarity,
       no alignment (adds the object pose and metric-scale errors, including the rotation
       ambiguity of symmetric objects);
-    * ``sd_cm`` (S.D.), ``iv_cm3`` (solid, 5 mm grid) and ``iv_obman_cm3`` (ObMan voxels),
-      ``pen_cm`` (deepest hand vertex inside), ``contact_cm`` (signed distance of the closest
-      hand vertex to the surface, < 0 inside), ``in_contact`` (a vertex inside or within 5 mm);
+    * ``sd_cm`` (S.D.), ``sd_cone_cm`` (S.D. averaged over gravity tilted by
+      :data:`SD_CONE_TILT_DEG` at :data:`SD_CONE_AZIMUTHS` azimuths and the untilted one:
+      :func:`easyhoi.metrics.cone_displacement`, lower variance), ``iv_cm3`` (solid, 5 mm
+      grid) and ``iv_obman_cm3`` (ObMan voxels), ``pen_cm`` (deepest hand vertex inside),
+      ``contact_cm`` (signed distance of the closest hand vertex to the surface, < 0 inside),
+      ``in_contact`` (a vertex inside or within 5 mm);
     * ``hand_iou`` / ``object_iou``: visible hand vs the GT M_h, object vs the GT amodal mask;
     * ``scale_err_pct``: |m / true m - 1| in %.
     """
@@ -131,7 +138,10 @@ def evaluate_hand(truth: _Truth, params: HandParams, m: float, camera, sd_steps:
     dist, inside = _signed_depths(V, obj)  # one closest-point query for pen / contact
     signed = np.where(inside, -dist, dist)
     hand_iou, object_iou = _mask_ious(truth, torch.as_tensor(V / m), camera)
-    sd = metrics.simulation_displacement(hand, obj, steps=sd_steps, gravity_dir=truth.gravity_obj)
+    # the cone's first direction is the untilted gravity: its entry is the published S.D.
+    sd_cone, sd_per = metrics.cone_displacement(
+        hand, obj, truth.gravity_obj, SD_CONE_TILT_DEG, SD_CONE_AZIMUTHS, steps=sd_steps
+    )
     R = camera.R.detach().double().numpy()
     t = camera.t.detach().double().numpy() * m
     Vc, Kc = V @ R.T + t, K @ R.T + t
@@ -139,7 +149,8 @@ def evaluate_hand(truth: _Truth, params: HandParams, m: float, camera, sd_steps:
         **_hand_errors(truth, K, V, truth.joints, truth.verts, Kc, Vc),
         "mpjpe_world_cm": metrics.mpjpe(Kw, truth.joints),
         "mpvpe_world_cm": metrics.mpvpe(Vw, truth.verts),
-        "sd_cm": sd.displacement,
+        "sd_cm": sd_per[0],
+        "sd_cone_cm": sd_cone,
         "iv_cm3": metrics.intersection_volume(hand, obj, method="solid"),
         "iv_obman_cm3": metrics.intersection_volume(hand, obj, method="obman"),
         "pen_cm": float(dist[inside].max() * 100.0) if inside.any() else 0.0,

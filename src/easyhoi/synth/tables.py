@@ -22,6 +22,7 @@ STAGE_ROWS = (
 #: (key, header, format, mean ± std?)
 HAND_COLUMNS = (
     ("sd_cm", "S.D. cm", "{:.2f}", True),
+    ("sd_cone_cm", "S.D. cone cm", "{:.2f}", False),
     ("iv_cm3", "I.V. cm3 solid", "{:.2f}", True),
     ("iv_obman_cm3", "I.V. cm3 ObMan", "{:.2f}", False),
     ("mpjpe_ra_cm", "MPJPE cm", "{:.2f}", False),
@@ -37,6 +38,7 @@ HAND_COLUMNS = (
 #: Metrics compared between the fast and paper presets: (key, higher is better).
 PRESET_METRICS = (
     ("sd_cm", False),
+    ("sd_cone_cm", False),
     ("iv_cm3", False),
     ("mpjpe_ra_cm", False),
     ("mpvpe_ra_cm", False),
