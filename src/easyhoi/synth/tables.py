@@ -158,13 +158,18 @@ def _worse(fast: float, paper: float, higher_better: bool, tol: float = 0.05) ->
     return fast > paper * (1 + tol) + 0.05
 
 
-def _preset_means(rows: list[dict], key: str) -> tuple[float, float, float]:
-    """Means over the paper scenes of ``key``: fast (final stage), paper, GT hand."""
+def _preset_values(rows: list[dict], key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-scene values over the paper scenes of ``key``: fast (final stage), paper, GT hand."""
     return tuple(
-        float(_values([get(r) for r in rows], key).mean())
+        _values([get(r) for r in rows], key)
         for get in (lambda r: r["stages"]["refine"], lambda r: r["paper"],
                     lambda r: r["ground_truth"])
     )  # fmt: skip
+
+
+def _preset_means(rows: list[dict], key: str) -> tuple[float, float, float]:
+    """Means over the paper scenes of ``key``: fast (final stage), paper, GT hand."""
+    return tuple(float(v.mean()) for v in _preset_values(rows, key))
 
 
 #: Resamples and seed of :func:`ratio_interval` (fixed: the tables are deterministic).
@@ -202,10 +207,9 @@ def preset_quality_table(report: dict) -> str:
               "GT hand", "GT worse by > 5 %"]  # fmt: skip
     rows = []
     for k, hb in PRESET_METRICS:
-        f, p, g = _preset_means(pr, k)
-        r, lo, hi = ratio_interval(
-            _values([x["stages"]["refine"] for x in pr], k), _values([x["paper"] for x in pr], k)
-        )
+        fv, pv, gv = _preset_values(pr, k)
+        f, p, g = float(fv.mean()), float(pv.mean()), float(gv.mean())
+        r, lo, hi = ratio_interval(fv, pv)
         ci = f"{r:.2f} ({lo:.2f}-{hi:.2f})" if np.isfinite(r) else "n/a"
         rows.append([k, f"{f:.3f}", f"{p:.3f}", "yes" if _worse(f, p, hb) else "no", ci,
                      f"{g:.3f}", "yes" if _worse(g, p, hb) else "no"])  # fmt: skip
