@@ -152,3 +152,32 @@ def test_ratio_interval_matches_a_naive_paired_bootstrap():
     r2, lo2, hi2 = ratio_interval(1.1 * paper, paper)
     assert (r2, lo2, hi2) == pytest.approx((1.1, 1.1, 1.1), rel=1e-12)
     assert all(np.isnan(ratio_interval(np.ones(3), np.zeros(3))))
+
+
+def test_preset_by_group_table_means_per_grasp_type():
+    from easyhoi.synth.tables import GROUP_METRICS, preset_by_group_table
+
+    keys = [k for k, _, _ in GROUP_METRICS]
+
+    def ev(x):
+        return {k: x + i for i, k in enumerate(keys)}
+
+    def row(grasp, fast, paper=None, gt=None):
+        r = {"grasp": grasp, "stages": {"refine": ev(fast)}}
+        return r if paper is None else {**r, "paper": ev(paper), "ground_truth": ev(gt)}
+
+    rows = [row("power", 1.0, 3.0, 0.5), row("power", 2.0, 5.0, 1.5),
+            row("lateral", 7.0, 2.0, 1.0), row("precision", 9.0)]  # fmt: skip
+    # (the precision scene has no paper run: left out)
+    lines = preset_by_group_table({"scenes": rows}).splitlines()
+    cells = {ln.split("|")[1].strip(): [c.strip() for c in ln.strip("|").split("|")]
+             for ln in lines[2:]}  # fmt: skip
+    assert list(cells) == ["lateral", "power", "all"]
+    # naive means: power fast (1 + 2) / 2, paper (3 + 5) / 2, GT (0.5 + 1.5) / 2, per column
+    # offset by the column index (ev); all three paper scenes for "all"
+    assert cells["power"][:3] == ["power", "2", "1.50 / 4.00 / 1.00"]
+    assert cells["power"][3] == "2.5 / 5.0 / 2.0"  # I.V. column: + 1, one decimal
+    assert cells["power"][4] == "3.50 / 6.00 / 3.00"  # MPJPE column: + 2
+    assert cells["lateral"][2] == "7.00 / 2.00 / 1.00"
+    assert cells["all"][1] == "3" and cells["all"][2] == "3.33 / 3.33 / 1.00"
+    assert preset_by_group_table({"scenes": rows[3:]}).startswith("(the paper preset did not run")

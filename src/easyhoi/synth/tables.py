@@ -11,7 +11,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["all_tables", "goals", "ratio_interval", "save_report", "tables_markdown"]
+__all__ = [
+    "all_tables",
+    "goals",
+    "preset_by_group_table",
+    "ratio_interval",
+    "save_report",
+    "tables_markdown",
+]
 
 STAGE_ROWS = (
     ("initial", "no optimization"),
@@ -216,6 +223,35 @@ def preset_quality_table(report: dict) -> str:
     return _table(header, rows)
 
 
+#: Columns of :func:`preset_by_group_table`: (key, header, format).
+GROUP_METRICS = (
+    ("sd_cm", "S.D. cm", "{:.2f}"),
+    ("iv_cm3", "I.V. cm3", "{:.1f}"),
+    ("mpjpe_ra_cm", "MPJPE cm", "{:.2f}"),
+)
+
+
+def preset_by_group_table(report: dict, field: str = "grasp") -> str:
+    """fast / paper / GT hand means per scene group (``field``: "grasp" or "kind").
+
+    One row per group among the scenes the paper preset ran on (sorted by name), then "all";
+    for each metric of :data:`GROUP_METRICS` the three means as ``fast / paper / GT``. Shows
+    where the presets differ (e.g. which grasp types the paper preset holds by burying the hand).
+    """
+    pr = _paper_rows(report)
+    if not pr:
+        return "(the paper preset did not run: --paper-scenes 0)"
+    groups = sorted({str(r[field]) for r in pr})
+    header = [field, "scenes"] + [h + " fast / paper / GT" for _, h, _ in GROUP_METRICS]
+    rows = []
+    for name, sel in [(g, [r for r in pr if str(r[field]) == g]) for g in groups] + [("all", pr)]:
+        cells = [name, str(len(sel))]
+        for key, _, fmt in GROUP_METRICS:
+            cells.append(" / ".join(fmt.format(m) for m in _preset_means(sel, key)))
+        rows.append(cells)
+    return _table(header, rows)
+
+
 def goals(report: dict) -> list[dict]:
     """The paper-derived goals (METHOD.md section 4) with the measured value and pass / miss."""
     sc = report["scenes"]
@@ -297,6 +333,8 @@ def all_tables(report: dict) -> dict[str, str]:
             report
         ),
         f"Quality fast vs paper (same {k} scenes)": preset_quality_table(report),
+        f"fast vs paper by grasp type (same {k} scenes)": preset_by_group_table(report, "grasp"),
+        f"fast vs paper by object kind (same {k} scenes)": preset_by_group_table(report, "kind"),
         "Goals from the paper's tables": goals_table(report),
     }
 
