@@ -85,9 +85,13 @@ def test_quick_benchmark_sane_and_deterministic(quick_report, tmp_path):
     assert strip_timings(again) == strip_timings(rep["scenes"][0])
     # tables, goals and files
     tables = all_tables(rep)
-    assert len(tables) == 7
+    assert len(tables) == 9
     md = tables_markdown(rep)
     assert "| no optimization |" in md and "| w/o penetration |" in md
+    # no paper run here (paper_scenes=0): the by-group tables say so
+    by_group = [t for k, t in tables.items() if "fast vs paper by" in k]
+    assert len(by_group) == 2
+    assert all(t.startswith("(the paper preset did not run") for t in by_group)
     assert "MISSED" in md or "met" in md
     assert all(isinstance(g["met"], bool) for g in goals(rep))
     paths = save_report(rep, tmp_path)

@@ -227,6 +227,17 @@ def test_contact_matches_naive_loop():
         assert_close(contact_loss(d, max_distance=md, reduction="none"), ref, atol=ATOL64)
     with pytest.raises(InvalidInputError, match="max_distance"):
         contact_loss(d, max_distance=0.0)
+    # one radius per vertex
+    radii = torch.where(torch.arange(40) % 3 == 0, 0.03, 0.01).to(D)
+    ref = [sum(float(d[b, v]) for v in range(40) if 0 < float(d[b, v]) < float(radii[v]))
+           for b in range(2)]  # fmt: skip
+    uniform = contact_loss(d, max_distance=0.01, reduction="none")
+    assert (torch.as_tensor(ref, dtype=D) > uniform + 1e-3).all()  # the wider radii count
+    assert_close(contact_loss(d, max_distance=radii, reduction="none"), ref, atol=ATOL64)
+    with pytest.raises(InvalidInputError, match="max_distance"):
+        contact_loss(d, max_distance=radii[:10])
+    with pytest.raises(InvalidInputError, match="max_distance"):
+        contact_loss(d, max_distance=radii - 0.02)
 
 
 def test_pose_reg_matches_naive_and_errors():
@@ -249,6 +260,9 @@ def test_3d_terms_gradcheck():
     assert torch.autograd.gradcheck(lambda x: penetration_loss(x, threshold=-5e-3), (d,))
     assert torch.autograd.gradcheck(lambda x: contact_loss(x), (d,))
     assert torch.autograd.gradcheck(lambda x: contact_loss(x, max_distance=0.1), (d,))
+    radii = torch.full((30,), 0.1, dtype=D)
+    radii[::2] = 0.04
+    assert torch.autograd.gradcheck(lambda x: contact_loss(x, max_distance=radii), (d,))
     th0 = torch.randn(2, 45, generator=g, dtype=D)
     th = th0 + torch.where(torch.rand(2, 45, generator=g, dtype=D) > 0.5, 0.1, -0.1)
     th.requires_grad_(True)

@@ -40,14 +40,16 @@ def test_refine_removes_penetration(kind, hand):
     scene = Scene.from_input(sc.inp, hand, torch.float32)
     cfg = replace(get_preset("fast").optim, render_size=SIZE)
     # 1 cm in: the fast preset's grasp settles pressing ~1-2 mm into the object (its
-    # penetration weight lets a grasp press, as a held object needs), so the start is deeper
+    # penetration weight lets a grasp press, as a held object needs, and its opposition radius
+    # pulls the thumb and index onto the object: box 2.8 -> 1.9 mm deepest, 1.0 mm without that
+    # radius), so the start is deeper and the deepest vertex must lose a third, not a half
     p0, _ = _pushed(sc, scene, hand, 0.01)
     m, cam = sc.gt_metric_scale, sc.gt_camera.to(torch.float32)
     before = plausibility(scene, p0, m, cam, SIZE)
     p, res = fit_refine(scene, p0, m, cam, cfg.refine, cfg)
     after = plausibility(scene, p, m, cam, SIZE)
     assert before["penetration_depth_cm"] > 0.15 and before["intersection_volume_cm3"] > 0
-    assert after["penetration_depth_cm"] < 0.5 * before["penetration_depth_cm"]
+    assert after["penetration_depth_cm"] < 0.67 * before["penetration_depth_cm"]
     assert after["penetration_depth_cm"] < 0.25
     assert after["intersection_volume_cm3"] < before["intersection_volume_cm3"]
     assert after["in_contact"]
@@ -124,7 +126,7 @@ def test_contact_term_is_rescaled_to_manos_contact_vertex_count(box_scene, hand)
     p0, _ = _pushed(sc, scene, hand, -0.003)  # 3 mm off the object
     m = sc.gt_metric_scale
     only = dict(hand_mask_weight=0.0, penetration_weight=0.0, reg_weight=0.0, contact_weight=1.0)
-    rc = replace(cfg.refine, **only, contact_max_distance=0.2)
+    rc = replace(cfg.refine, **only, contact_max_distance=0.2, opposition_max_distance=None)
     assert rc.contact_reference_count == 115.0 == MANO_CONTACT_VERTICES
     got = float(refine_terms(scene, p0, m, p0.pose, rc, None, None)["contact"])
     # naive reference, vertex by vertex
@@ -147,6 +149,42 @@ def test_contact_term_is_rescaled_to_manos_contact_vertex_count(box_scene, hand)
     assert float(two) == pytest.approx(float(one), rel=1e-6)
     with pytest.raises(Exception, match="reference_count"):
         contact_loss(dc, reference_count=0.0)
+
+
+def test_opposition_radius_attracts_only_thumb_and_index_from_farther(box_scene, hand):
+    """With opposition_max_distance the thumb's and index's contact vertices are attracted
+    from that far, the other contact vertices only within contact_max_distance."""
+    from easyhoi.hand.regions import DIGIT_JOINTS
+    from easyhoi.optim.refine import contact_radii
+
+    sc, scene, cfg = box_scene
+    p0, _ = _pushed(sc, scene, hand, -0.01)  # 1 cm off the object
+    m = sc.gt_metric_scale
+    only = dict(hand_mask_weight=0.0, penetration_weight=0.0, reg_weight=0.0, contact_weight=1.0)
+    near, far = 0.05, 0.3
+    rc = replace(cfg.refine, **only, contact_max_distance=near, opposition_max_distance=far)
+    radii = contact_radii(scene, rc)
+    cv = scene.regions.contact_vertices.tolist()
+    part = scene.regions.vertex_part.tolist()
+    opposing = {*DIGIT_JOINTS["thumb"], *DIGIT_JOINTS["index"]}
+    expect = [far if part[i] in opposing else near for i in cv]
+    assert radii.tolist() == pytest.approx(expect)
+    assert 0 < sum(r == far for r in expect) < len(cv)  # both kinds present
+    got = float(refine_terms(scene, p0, m, p0.pose, rc, None, None)["contact"])
+    with torch.no_grad():
+        d = scene.sdf(hand(p0).vertices[0] / m, rc.sdf_resolution)
+    raw = sum(float(d[i]) for i, r in zip(cv, expect, strict=True) if 0.0 < float(d[i]) < r)
+    assert got == pytest.approx(raw * 115.0 / len(cv), rel=1e-5)
+
+    # the far radius attracts more than the near one alone, less than attracting everything
+    def contact(**kw):
+        return float(refine_terms(scene, p0, m, p0.pose, replace(rc, **kw), None, None)["contact"])
+
+    plain = contact(opposition_max_distance=None)
+    everything = contact(contact_max_distance=far, opposition_max_distance=None)
+    assert plain < got < everything
+    # unset contact_max_distance (the paper: all attracted) ignores the opposition radius
+    assert contact_radii(scene, replace(rc, contact_max_distance=None)) is None
 
 
 @pytest.mark.parametrize("lr", [1e-3, 4e-3])

@@ -237,6 +237,11 @@ class RefineStageConfig:
     contact_max_distance: float | None = None
     """Attract contact vertices only closer than this (normalised object units); None = all,
     the paper."""
+    opposition_max_distance: float | None = None
+    """Attraction radius of the thumb's and index finger's contact vertices (normalised object
+    units), the digits that close a grasp from opposite sides; the other contact vertices keep
+    contact_max_distance. None = contact_max_distance for all. Used only when
+    contact_max_distance is set."""
     optimise_global: bool = True
     """Optimise the global pose phi."""
     optimise_pose: bool = True
@@ -267,6 +272,11 @@ class RefineStageConfig:
             raise InvalidInputError(
                 f"RefineStageConfig.contact_max_distance must be > 0 or None, "
                 f"got {self.contact_max_distance}"
+            )
+        if self.opposition_max_distance is not None and not self.opposition_max_distance > 0:
+            raise InvalidInputError(
+                f"RefineStageConfig.opposition_max_distance must be > 0 or None, "
+                f"got {self.opposition_max_distance}"
             )
 
 
@@ -427,6 +437,12 @@ _FAST = EasyHOIConfig(
             penetration_weight=2000.0,
             contact_weight=1.0,
             contact_max_distance=0.05,
+            # the thumb and index close the grasp from opposite sides: their pads are pulled in
+            # from 10 % of the object's size (the estimator's fingers often end 5-15 mm off).
+            # 60 held synthetic scenes (3 x 20): S.D. 3.80 -> 3.20 cm (paired difference -0.60,
+            # standard error 0.31), lateral grasps 5.7 -> 4.8; MPJPE ra 0.821 -> 0.823 cm, hand
+            # IoU 0.785 -> 0.782, I.V. 6.1 -> 6.5 cm3; 0.15: S.D. 3.40, MPJPE 0.85, 0.3 worse
+            opposition_max_distance=0.1,
             penetration_threshold=-0.002,
         ),
         render_size=128,

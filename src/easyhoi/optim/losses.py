@@ -275,10 +275,11 @@ def contact_loss(
     ----------
     sdf_values : (B, C) or (C,) float tensor
         Object signed distance at the C contact-zone vertices of each hand.
-    max_distance : float or None
+    max_distance : float, (C,) tensor or None
         None (the paper): every contact vertex outside the object is attracted. A positive
         number: only vertices with ``0 < d < max_distance`` are attracted (vertices far away,
-        for example on fingers that do not touch, are left alone).
+        for example on fingers that do not touch, are left alone). A (C,) tensor of positive
+        numbers: one radius per contact vertex.
     reduction : {"mean", "sum", "none"}
         Combines the per-hand sums (B,).
     reference_count : float or None
@@ -291,7 +292,17 @@ def contact_loss(
     d = _check_sdf(sdf_values, "contact_loss")
     gap = d.clamp_min(0.0)
     if max_distance is not None:
-        if not max_distance > 0:
+        if isinstance(max_distance, torch.Tensor):
+            if max_distance.shape != d.shape[1:]:
+                raise InvalidInputError(
+                    f"contact_loss: max_distance must be a number or ({d.shape[1]},), got "
+                    f"{tuple(max_distance.shape)}"
+                )
+            ok = bool((max_distance > 0).all())
+            max_distance = max_distance.to(d)
+        else:
+            ok = max_distance > 0
+        if not ok:
             raise InvalidInputError(f"contact_loss: max_distance must be > 0, got {max_distance}")
         gap = torch.where(d < max_distance, gap, torch.zeros_like(gap))
     per_hand = gap.sum(dim=1)

@@ -11,6 +11,8 @@ scale, as the paper's normalised object frame) and the 45 articulation parameter
     L = hand_mask_weight   * soft_iou(visible hand, M_h)
       + penetration_weight * (1/V) sum_v max(0, -d(v))      (d below penetration_threshold)
       + contact_weight     * (K / |C|) sum_{v in C} max(0, d(v))   (C: contact zones)
+                             (only d(v) < contact_max_distance, or opposition_max_distance
+                              for the thumb's and index finger's C vertices; see contact_radii)
       + reg_weight         * ||theta - theta_0||_1
 
 ``K = contact_reference_count`` (115, MANO's contact-zone size): the contact sum is made
@@ -32,6 +34,7 @@ import time
 import torch
 
 from easyhoi.config import OptimConfig, RefineStageConfig
+from easyhoi.hand.regions import DIGIT_JOINTS
 from easyhoi.hoi import StageResult
 from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
 from easyhoi.optim.scene import (
@@ -89,7 +92,7 @@ def refine_terms(
         if cfg.contact_weight > 0:
             dc = d[scene.regions.contact_vertices]
             terms["contact"] = contact_loss(
-                dc, cfg.contact_max_distance, reference_count=cfg.contact_reference_count
+                dc, contact_radii(scene, cfg), reference_count=cfg.contact_reference_count
             )
             total = total + cfg.contact_weight * terms["contact"]
     if cfg.reg_weight > 0:
@@ -97,6 +100,22 @@ def refine_terms(
         total = total + cfg.reg_weight * terms["reg"]
     terms["total"] = total
     return terms
+
+
+def contact_radii(scene: Scene, cfg: RefineStageConfig):
+    """Attraction radius of the contact term: ``contact_max_distance`` (a number or None), or
+    with ``opposition_max_distance`` a (C,) tensor giving the thumb's and index finger's
+    contact vertices that radius and the others ``contact_max_distance``."""
+    if cfg.contact_max_distance is None or cfg.opposition_max_distance is None:
+        return cfg.contact_max_distance
+    regions = scene.regions
+    part = regions.vertex_part[regions.contact_vertices]
+    opposing = torch.as_tensor([*DIGIT_JOINTS["thumb"], *DIGIT_JOINTS["index"]])
+    return torch.where(
+        torch.isin(part, opposing.to(part.device)),
+        torch.tensor(float(cfg.opposition_max_distance), dtype=scene.dtype),
+        torch.tensor(float(cfg.contact_max_distance), dtype=scene.dtype),
+    )
 
 
 def fit_refine(
