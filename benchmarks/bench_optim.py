@@ -3,15 +3,17 @@
 Both presets run on the same synthetic hand-object scenes (``tests/optim_scenes.py``: an
 OpenHand grasping a cylinder or a box, masks rendered from the ground truth, the hand estimate
 perturbed) in the same process, one intra-op thread (the optimizer's small problems run several
-times slower oversubscribed on a busy machine). For each run: seconds per stage and in total,
-and quality against the ground truth, every metric measured the same way for both presets (at
-the scene's size): hand mask IoU, object (amodal) mask IoU, penetration depth (cm),
-intersection volume (cm^3, solid), |signed contact distance| (cm), mean hand-vertex error (cm,
-object frame scaled by the TRUE metric scale), the metric-scale error (%) and the simulation
-displacement S.D. (cm; :func:`easyhoi.metrics.simulation_displacement`, 35 steps, gravity
-down in the ground-truth image, the same for every row). A ``gt`` row gives the ground-truth
-hand's values (its grasp has a 1 mm gap and does not hold the object in the simulation: S.D.
-~10 cm; an S.D. far below that comes from a hand buried in the object, see the I.V. column).
+times slower oversubscribed on a busy machine), each preset ``--repeat`` times (3) in turn: the
+fastest run's seconds per stage and in total (the least disturbed by other jobs; the runs must
+give the same hand, which checks determinism), and quality against the ground truth, every
+metric measured the same way for both presets (at the scene's size): hand mask IoU, object
+(amodal) mask IoU, penetration depth (cm), intersection volume (cm^3, solid), |signed contact
+distance| (cm), mean hand-vertex error (cm, object frame scaled by the TRUE metric scale), the
+metric-scale error (%) and the simulation displacement S.D. (cm;
+:func:`easyhoi.metrics.simulation_displacement`, 35 steps, gravity down in the ground-truth
+image, the same for every row). A ``gt`` row gives the ground-truth hand's values (its grasp has
+a 1 mm gap and does not hold the object in the simulation: S.D. ~10 cm; an S.D. far below that
+comes from a hand buried in the object, see the I.V. column).
 
 Comparison ("fast no worse than paper by more than 5 %", the issue's target): an IoU is worse
 when ``fast < 0.95 * paper``; a lower-is-better metric when ``fast > 1.05 * paper + tol`` with a
@@ -33,8 +35,10 @@ when they fit); the table says which cap ran.
 
 Usage::
 
-    python benchmarks/bench_optim.py                 # 2 scenes, full paper schedule (~40 s)
+    python benchmarks/bench_optim.py                 # 2 scenes, full paper schedule, 3 runs
+                                                     # per preset (fastest time kept; ~2 min)
     python benchmarks/bench_optim.py --quick         # 1 scene, paper capped at 250 iterations
+    python benchmarks/bench_optim.py --repeat 1      # one run per preset
     python benchmarks/bench_optim.py --paper-cap 300
 
 Results: a table on stdout and ``benchmarks/results/bench_optim.json``.
@@ -115,23 +119,35 @@ def _quality(scene, model, params, metric_scale: float, camera, render_size: int
     }
 
 
-def run_one(scene, preset: str, cap: int, size: int) -> dict:
+def run_one(scene, preset: str, cap: int, size: int, repeat: int = 1) -> dict:
+    """Optimize ``repeat`` times; seconds are the fastest run's (the least disturbed by other
+    jobs on the machine), quality the first run's (every run must give the same hand)."""
+    import torch
+
     from easyhoi.config import get_preset
     from easyhoi.optim.run import optimize
 
     cfg = get_preset(preset).optim
     if preset == "paper":
         cfg = _capped(cfg, cap)
-    start = time.perf_counter()
-    res = optimize(scene.inp, cfg)
-    total = time.perf_counter() - start
+    best, res = None, None
+    for _ in range(max(1, repeat)):
+        start = time.perf_counter()
+        r = optimize(scene.inp, cfg)
+        total = time.perf_counter() - start
+        if res is None:
+            res = r
+        elif not torch.equal(r.hand_params.pose, res.hand_params.pose):
+            raise RuntimeError(f"{preset}: two runs on the same input gave different hands")
+        if best is None or total < best[0]:
+            best = (total, r.timings)
+    total, timings = best
     return {
         "preset": preset,
         "paper_cap": cap if preset == "paper" else None,
+        "repeat": max(1, repeat),
         "seconds": {
-            **{
-                k: round(float(res.timings.get(k, 0.0)), 3) for k in ("camera", "contact", "refine")
-            },
+            **{k: round(float(timings.get(k, 0.0)), 3) for k in ("camera", "contact", "refine")},
             "total": round(total, 3),
         },
         "iterations": {s.name: s.iterations for s in res.stages},
@@ -170,6 +186,7 @@ def main(argv=None) -> int:
     ap.add_argument("--paper-cap", type=int, default=None, help="iterations cap (0 = none)")
     ap.add_argument("--size", type=int, default=128, help="image size of the scenes (px)")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--repeat", type=int, default=3, help="runs per preset; fastest time kept")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(ROOT))
     import torch
@@ -189,7 +206,7 @@ def main(argv=None) -> int:
         scene = make_scene(kind, size=args.size, **NOISE)
         rows.append({**ground_truth_row(scene, args.size), "scene": kind})
         for preset in ("fast", "paper"):
-            r = run_one(scene, preset, cap, args.size)
+            r = run_one(scene, preset, cap, args.size, args.repeat)
             r["scene"] = kind
             rows.append(r)
             print(f"{kind:9s} {preset:6s} {r['seconds']['total']:7.1f} s", flush=True)
