@@ -1,0 +1,109 @@
+"""User prompts that steer perception when the automatic choice is wrong.
+
+A prompt is one gesture on the photo: a point inside the held object (``--object-point X,Y``,
+repeatable), a box around it (``--object-box X0,Y0,X1,Y1``) or a point on the hand that holds it
+(``--hand-point X,Y``). Coordinates are pixels of the original photo, x right, y down.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from easyhoi.errors import InvalidInputError
+
+
+@dataclass(frozen=True)
+class Prompts:
+    """Pixel prompts for one photo (all optional).
+
+    Attributes:
+        object_points: ((x, y), ...) points inside the held object.
+        object_box: (x0, y0, x1, y1) box around the held object, or None.
+        hand_point: (x, y) point on the hand that holds the object, or None.
+    """
+
+    object_points: tuple[tuple[float, float], ...] = ()
+    object_box: tuple[float, float, float, float] | None = None
+    hand_point: tuple[float, float] | None = None
+
+    @property
+    def empty(self) -> bool:
+        return not self.object_points and self.object_box is None and self.hand_point is None
+
+    @property
+    def has_object_prompt(self) -> bool:
+        return bool(self.object_points) or self.object_box is not None
+
+    def check(self, width: int, height: int) -> Prompts:
+        """Return self if every prompt lies inside a ``width`` x ``height`` photo, else raise."""
+        for name, pts in (
+            ("--object-point", self.object_points),
+            ("--hand-point", () if self.hand_point is None else (self.hand_point,)),
+        ):
+            for x, y in pts:
+                if not (0 <= x < width and 0 <= y < height):
+                    raise InvalidInputError(
+                        f"{name} {x:g},{y:g} lies outside the {width}x{height} photo "
+                        f"(x in [0, {width}), y in [0, {height}))"
+                    )
+        if self.object_box is not None:
+            x0, y0, x1, y1 = self.object_box
+            if not (x0 < x1 and y0 < y1):
+                raise InvalidInputError(
+                    f"--object-box {x0:g},{y0:g},{x1:g},{y1:g} must have x0 < x1 and y0 < y1"
+                )
+            if x1 <= 0 or y1 <= 0 or x0 >= width or y0 >= height:
+                raise InvalidInputError(
+                    f"--object-box {x0:g},{y0:g},{x1:g},{y1:g} does not overlap the "
+                    f"{width}x{height} photo"
+                )
+        return self
+
+    def to_dict(self) -> dict:
+        return {
+            "object_points": [list(p) for p in self.object_points],
+            "object_box": None if self.object_box is None else list(self.object_box),
+            "hand_point": None if self.hand_point is None else list(self.hand_point),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Prompts:
+        """Inverse of :meth:`to_dict`; validates types (raises InvalidInputError)."""
+        if not isinstance(d, dict):
+            raise InvalidInputError(f"prompts must be a mapping, got {type(d).__name__}")
+        unknown = set(d) - {"object_points", "object_box", "hand_point"}
+        if unknown:
+            raise InvalidInputError(f"unknown prompt keys: {', '.join(sorted(unknown))}")
+        pts = d.get("object_points") or []
+        box = d.get("object_box")
+        hp = d.get("hand_point")
+        return cls(
+            object_points=tuple(_numbers(p, 2, "object_points entry") for p in pts),
+            object_box=None if box is None else _numbers(box, 4, "object_box"),
+            hand_point=None if hp is None else _numbers(hp, 2, "hand_point"),
+        )
+
+
+def _numbers(value, n: int, name: str) -> tuple[float, ...]:
+    try:
+        arr = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"{name} must be {n} numbers, got {value!r}") from exc
+    if arr.size != n or not np.all(np.isfinite(arr)):
+        raise InvalidInputError(f"{name} must be {n} finite numbers, got {value!r}")
+    return tuple(float(v) for v in arr)
+
+
+def parse_numbers(text: str, n: int, flag: str) -> tuple[float, ...]:
+    """Parse ``"X,Y"`` (n=2) or ``"X0,Y0,X1,Y1"`` (n=4) from a command-line flag."""
+    parts = [p.strip() for p in str(text).split(",")]
+    try:
+        vals = tuple(float(p) for p in parts)
+    except ValueError:
+        vals = ()
+    if len(vals) != n or not all(np.isfinite(vals)):
+        form = "X,Y" if n == 2 else "X0,Y0,X1,Y1"
+        raise InvalidInputError(f"{flag} expects {form} (pixels), got {text!r}")
+    return vals
