@@ -15,7 +15,7 @@ def test_parse_numbers():
 
 
 def test_check_inside_photo():
-    ok = Prompts(((0, 0), (9.5, 4)), (1, 1, 20, 20), (5, 5))
+    ok = Prompts(((0, 0), (9.5, 4)), (1, 1, 20, 20), (5, 4))
     assert ok.check(10, 5) is ok
     with pytest.raises(InvalidInputError, match="outside the 10x5 photo"):
         Prompts(((10, 0),)).check(10, 5)
