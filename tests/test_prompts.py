@@ -36,3 +36,18 @@ def test_round_trip_and_flags():
         Prompts.from_dict({"object_pts": []})
     with pytest.raises(InvalidInputError, match="object_box"):
         Prompts.from_dict({"object_box": [1, 2, 3]})
+
+
+def test_mask_confidence_and_report():
+    from easyhoi.perception.chain import PerceptionReport
+    from easyhoi.perception.confidence import LOW_CONFIDENCE, MaskConfidence
+
+    hi = MaskConfidence(0.9)
+    lo = MaskConfidence(LOW_CONFIDENCE - 0.01, ["object runs out of the frame"])
+    assert not hi.low and lo.low and MaskConfidence(LOW_CONFIDENCE).low is False
+    with pytest.raises(ValueError):
+        MaskConfidence(1.5)
+    r = PerceptionReport(confidence={"hand": hi, "object": lo})
+    assert r.low_confidence == ["object"]
+    d = r.to_dict()["confidence"]
+    assert d["object"] == {"score": 0.49, "low": True, "reasons": ["object runs out of the frame"]}

@@ -38,6 +38,8 @@ class PerceptionReport:
     has_object: bool = False
     timings: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    #: mask name ("hand", "object", "amodal") -> :class:`~easyhoi.perception.confidence.MaskConfidence`
+    confidence: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {
@@ -46,7 +48,13 @@ class PerceptionReport:
             "has_object": self.has_object,
             "timings": dict(self.timings),
             "notes": list(self.notes),
+            "confidence": {k: v.to_dict() for k, v in self.confidence.items()},
         }
+
+    @property
+    def low_confidence(self) -> list[str]:
+        """Names of the masks whose confidence is low."""
+        return [k for k, v in self.confidence.items() if v.low]
 
 
 @dataclass(frozen=True)

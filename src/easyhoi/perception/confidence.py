@@ -1,0 +1,35 @@
+"""How sure perception is of each mask, and why.
+
+Every perception result carries, per mask (``hand``, ``object``, ``amodal``), a
+:class:`MaskConfidence`: a score in [0, 1] and the cues that were weak. A score below
+:data:`LOW_CONFIDENCE` is reported as a warning that names the prompt that fixes it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+#: Scores below this are "low": the result warns, and ``--strict`` turns it into an exit code.
+LOW_CONFIDENCE = 0.5
+
+
+@dataclass(frozen=True)
+class MaskConfidence:
+    """Score in [0, 1] of one mask and the reasons it is not higher (weak cues, in words)."""
+
+    score: float
+    reasons: tuple[str, ...] = field(default_factory=tuple)
+
+    def __post_init__(self):
+        s = float(self.score)
+        if not 0.0 <= s <= 1.0:
+            raise ValueError(f"confidence score must lie in [0, 1], got {s}")
+        object.__setattr__(self, "score", s)
+        object.__setattr__(self, "reasons", tuple(str(r) for r in self.reasons))
+
+    @property
+    def low(self) -> bool:
+        return self.score < LOW_CONFIDENCE
+
+    def to_dict(self) -> dict:
+        return {"score": round(self.score, 4), "low": self.low, "reasons": list(self.reasons)}
