@@ -38,7 +38,7 @@ class PerceptionReport:
     has_object: bool = False
     timings: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
-    #: mask name ("hand", "object", "amodal") -> :class:`~easyhoi.perception.confidence.MaskConfidence`
+    #: mask name ("hand", "object", "amodal") -> MaskConfidence (perception.confidence)
     confidence: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
