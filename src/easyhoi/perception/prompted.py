@@ -1,0 +1,111 @@
+"""Prompted held-object segmentation: the object is the region containing the user's points
+or filling the user's box.
+
+A point says where the object is but not how far it extends. The hypotheses of the proposal
+hierarchy that contain every point form a chain from a single segment up to large parts of the
+crop; the cues of :mod:`.held_object` (with the outline contrast measured on every member of
+the chain) pick the level that looks most like a whole object held by the hand. That region
+seeds GrabCut with the points as sure foreground and the hands as sure background.
+
+A box says how far it extends: the hypotheses are scored by how well they fill it (IoU with the
+box's inscribed ellipse-free rectangle is too strict for round objects, so the share of the region
+inside the box times the share of the box it covers), and GrabCut runs with everything outside
+the box as sure background.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from easyhoi.perception import held_object as ho
+from easyhoi.perception.proposals import Proposals
+
+
+def _point_disks(shape: tuple[int, int], pts: np.ndarray, radius: float) -> np.ndarray:
+    out = np.zeros(shape, np.uint8)
+    for u, v in pts:
+        cv2.circle(out, (int(round(u)), int(round(v))), max(1, int(round(radius))), 1, -1)
+    return out.astype(bool)
+
+
+def prompted_object(
+    img: np.ndarray,
+    props: Proposals,
+    scene: ho.Scene,
+    points: np.ndarray,
+    box: tuple[float, float, float, float] | None,
+    iterations: int,
+    seed: int,
+) -> tuple[np.ndarray, ho.Hypotheses | None, int | None]:
+    """(object mask, hypotheses, index of the chosen one) in working-crop pixels.
+
+    ``points`` (N, 2) (u, v) and ``box`` (u0, v0, u1, v1) are in working-crop pixels; at least
+    one of them is given.
+    """
+    shape = img.shape[:2]
+    h, w = shape
+    L = scene.palm
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    pts = np.clip(pts, 0, [w - 1, h - 1])
+    sure = _point_disks(shape, pts, max(1.0, 0.04 * L))
+    forbidden = (scene.hand | scene.other_hands) & ~sure
+    boxmask = None
+    if box is not None:
+        u0, v0, u1, v1 = (int(round(b)) for b in box)
+        boxmask = np.zeros(shape, bool)
+        boxmask[max(0, v0) : max(0, v1), max(0, u0) : max(0, u1)] = True
+    if not props.regions:
+        return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None
+    cues = ho.describe(props, scene)
+    n = len(props.regions)
+    ok = np.ones(n, bool)
+    labels_at = [int(props.labels[int(v), int(u)]) for u, v in pts]
+    for lab in labels_at:
+        if lab >= 0:
+            ok &= np.array([lab in r for r in props.regions])
+    fit = np.zeros(n)
+    if boxmask is not None:
+        inside = ho.segment_sums(props.labels, boxmask, props.n_base)
+        box_area = max(1.0, float(boxmask.sum()))
+        for i, r in enumerate(props.regions):
+            idx = np.fromiter(r, int, len(r))
+            a_in = float(inside[idx].sum())
+            size = float(props.sizes[idx].sum())
+            fit[i] = (a_in / max(size, 1.0)) * (a_in / box_area)
+        ok &= fit > 0.05
+    if not ok.any():
+        return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None
+    exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    smooth = cv2.GaussianBlur(scene.lab.astype(np.float32), (0, 0), 1.0)
+    width = max(3, int(0.15 * L))
+    j = ho.CUES.index("contrast")
+    cand = np.flatnonzero(ok)
+    if len(cand) > 40:  # the largest chains: keep the 40 best by the cheap cues
+        cand = cand[np.argsort(-ho.score(cues[cand]) - 4.0 * fit[cand], kind="stable")[:40]]
+    for i in cand:
+        cues[i, j] = ho.outline_contrast(props.mask(props.regions[i]), exclude, smooth, width)
+    # the user vouches for the object: grasp cues matter less than the region being an object
+    s = ho.score(cues) + 4.0 * fit
+    s = np.where(np.isin(np.arange(n), cand), s, -np.inf)
+    best = int(np.argmax(s))
+    hyp = ho.Hypotheses(props, cues, s)
+    raw = props.mask(props.regions[best]) | sure
+    if boxmask is not None:
+        raw &= boxmask
+        forbidden = forbidden | ~boxmask
+    obj = ho.refine(img, raw, forbidden, iterations, seed, sure=sure)
+    return obj | (sure & ~forbidden), hyp, best
+
+
+def _grabcut_only(img, sure, boxmask, forbidden, iterations, seed) -> np.ndarray:
+    """GrabCut from the prompts alone (no proposal contains them)."""
+    from easyhoi.perception.skin import grabcut
+
+    init = np.full(img.shape[:2], cv2.GC_PR_BGD, np.uint8)
+    if boxmask is not None:
+        init[~boxmask] = cv2.GC_BGD
+        init[boxmask] = cv2.GC_PR_FGD
+    init[forbidden] = cv2.GC_BGD
+    init[sure] = cv2.GC_FGD
+    return grabcut(img, init, iterations, seed) & ~forbidden
