@@ -31,6 +31,7 @@ def reconstruct_photo(
     *,
     seed: int = 0,
     provided=None,
+    prompts=None,
     progress: Callable[[str, int, int, dict], None] | None = None,
     say: Callable[[str], None] | None = None,
 ) -> Reconstruction:
@@ -42,6 +43,7 @@ def reconstruct_photo(
         config: :class:`EasyHOIConfig` (default: the "fast" preset).
         seed: random seed (same input + seed -> same output).
         provided: :class:`easyhoi.perception.chain.Provided` results of other tools.
+        prompts: :class:`easyhoi.perception.prompts.Prompts` pointing at the object / hand.
         progress: optimizer progress callback ``(stage, iteration, max_iters, losses)``.
         say: callback for perception step names.
     """
@@ -57,7 +59,9 @@ def reconstruct_photo(
 
     cfg = config or get_preset("fast")
     cfg = replace(cfg, optim=replace(cfg.optim, seed=seed))
-    inp, report = perceive(image.rgb, cfg, progress=say, seed=seed, provided=provided)
+    inp, report = perceive(
+        image.rgb, cfg, progress=say, seed=seed, provided=provided, prompts=prompts
+    )
     result = optimize(inp, cfg.optim, progress=progress)
     files = []
     if out_dir is not None:

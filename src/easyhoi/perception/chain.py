@@ -3,8 +3,9 @@
 Steps (each a pluggable backend, chosen by name in :class:`~easyhoi.config.PerceptionConfig`):
 
 1. hand detection (keypoints) and keypoint fitting of the hand model;
-2. HOI segmentation: visible hand mask M_h, held-object mask M_o after contour-guided filtering.
-   With several hands, the first (most confident) hand that holds an object is used;
+2. HOI segmentation: visible hand mask M_h, held-object mask M_o and their confidence. With
+   several hands, the hand whose object has the best confidence is used (a hand that holds no
+   object is noted in the report); prompts (object points / box, a hand point) steer it;
 3. hand removal by inpainting (hand mask dilated);
 4. amodal re-segmentation prompted by points in every part of M_o and a loose box -> M^_o
    (forced to contain M_o);
@@ -25,6 +26,7 @@ from easyhoi.errors import InvalidInputError, NoHandError, NoObjectError
 from easyhoi.hand import load_hand_model
 from easyhoi.hoi import HOIInput
 from easyhoi.perception.base import HandDetection, Segmentation, create
+from easyhoi.perception.prompts import Prompts
 
 logger = logging.getLogger(__name__)
 
@@ -80,10 +82,12 @@ def perceive(
     progress: Callable[[str], None] | None = None,
     seed: int = 0,
     provided: Provided | None = None,
+    prompts: Prompts | None = None,
 ) -> tuple[HOIInput, PerceptionReport]:
     """Run the perception chain on an (H, W, 3) uint8 RGB photo.
 
     Steps whose results are in ``provided`` are skipped (their inputs are not needed).
+    ``prompts`` (validated against the photo) point at the held object and/or the hand.
 
     Raises:
         NoHandError: no hand in the photo.
@@ -98,6 +102,8 @@ def perceive(
     report = PerceptionReport()
     say = progress or (lambda _msg: None)
     H, W = image.shape[:2]
+    if prompts is not None:
+        prompts = prompts.check(W, H)
 
     def timed(name, fn, *a, **kw):
         say(name)
@@ -122,23 +128,25 @@ def perceive(
     report.hands_found = len(hands)
     if not hands:
         raise NoHandError("no hand found in the photo")
-    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter)
-    chosen = seg = None
-    for i, hand in enumerate(hands):
-        if masks_given:
-            s = Segmentation(pv.hand_mask, pv.object_mask, bool(pv.object_mask.any()))
-        else:
-            s = timed(f"segmentation (hand {i})", segmenter.segment, image, hand)
-            if pv.hand_mask is not None or pv.object_mask is not None:
-                hm = s.hand_mask if pv.hand_mask is None else pv.hand_mask
-                om = s.object_mask if pv.object_mask is None else pv.object_mask
-                s = Segmentation(hm, om, bool(om.any()), s.candidates, s.meta)
-        if s.has_object:
-            chosen, seg = hand, s
-            break
-        report.notes.append(f"hand {i} ({hand.side}) holds no object")
-    if chosen is None:
-        raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
+    if masks_given:
+        chosen = hands[0]
+        seg = Segmentation(pv.hand_mask, pv.object_mask, bool(pv.object_mask.any()))
+        if not seg.has_object:
+            raise NoObjectError("the provided object mask is empty")
+    else:
+        segmenter = _backend(pc, "segmenter", pc.segmenter)
+        idx, seg, notes = segment_hands(image, hands, segmenter, prompts, timed)
+        report.notes.extend(notes)
+        if seg is None:
+            raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
+        chosen = hands[idx]
+        if pv.hand_mask is not None or pv.object_mask is not None:
+            hm = seg.hand_mask if pv.hand_mask is None else pv.hand_mask
+            om = seg.object_mask if pv.object_mask is None else pv.object_mask
+            seg = Segmentation(hm, om, bool(om.any()), seg.candidates, seg.meta, seg.confidence)
+            if pv.object_mask is not None:
+                seg.confidence.pop("object", None)
+        report.confidence.update(seg.confidence)
     report.side, report.has_object = chosen.side, True
 
     model = load_hand_model(cfg.hand_model, cfg.mano_dir)
@@ -192,6 +200,77 @@ def perceive(
         },
     )
     return inp, report
+
+
+def nearest_hand(hands: list[HandDetection], point: tuple[float, float]) -> int:
+    """Index of the hand whose skeleton (keypoints and the bones between them) is nearest to
+    ``point``."""
+    from easyhoi.perception.skin import BONES
+
+    p = np.asarray(point, dtype=np.float64)
+    best, best_d = 0, np.inf
+    for i, h in enumerate(hands):
+        kp = np.asarray(h.keypoints2d, dtype=np.float64)
+        if kp.shape != (21, 2):
+            continue
+        a, b = kp[[p0 for p0, _ in BONES]], kp[[p1 for _, p1 in BONES]]
+        ab = b - a
+        t = np.clip(((p - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-9), 0.0, 1.0)
+        d = float(np.linalg.norm(a + t[:, None] * ab - p, axis=1).min())
+        if d < best_d:
+            best, best_d = i, d
+    return best
+
+
+def segment_hands(
+    image: np.ndarray,
+    hands: list[HandDetection],
+    segmenter,
+    prompts: Prompts | None = None,
+    timed: Callable | None = None,
+) -> tuple[int | None, Segmentation | None, list[str]]:
+    """Segment the hand(s) and pick the one whose held object is most certain.
+
+    With ``prompts.hand_point`` only the hand nearest to it is segmented; with object prompts
+    alone, the hand nearest to the object points (or the box centre). Otherwise every hand
+    is segmented (the others passed as ``others`` so they are never part of the object), and
+    the hand with an object of the highest object confidence wins; each hand that holds no
+    object is named in the notes. Returns (hand index, segmentation, notes), or
+    (None, None, notes) when no hand holds an object.
+    """
+    import inspect
+
+    run = timed or (lambda _name, fn, *a, **kw: fn(*a, **kw))
+    params = inspect.signature(segmenter.segment).parameters
+    order = list(range(len(hands)))
+    if prompts is not None and prompts.hand_point is not None:
+        order = [nearest_hand(hands, prompts.hand_point)]
+    elif prompts is not None and prompts.has_object_prompt:  # the hand nearest the object
+        if prompts.object_points:
+            centre = np.mean(np.asarray(prompts.object_points, dtype=np.float64), axis=0)
+        else:
+            x0, y0, x1, y1 = prompts.object_box
+            centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+        order = [nearest_hand(hands, tuple(centre))]
+    notes, results = [], []
+    for i in order:
+        kw = {}
+        if "prompts" in params and prompts is not None and prompts.has_object_prompt:
+            kw["prompts"] = prompts
+        if "others" in params:
+            kw["others"] = [h for j, h in enumerate(hands) if j != i]
+        s = run(f"segmentation (hand {i})", segmenter.segment, image, hands[i], **kw)
+        if s.has_object:
+            conf = s.confidence.get("object")
+            results.append((conf.score if conf is not None else 0.0, -i, i, s))
+        else:
+            notes.append(f"hand {i} ({hands[i].side}) holds no object")
+    if not results:
+        return None, None, notes
+    _, _, i, s = max(results, key=lambda r: (r[0], r[1]))
+    if notes:
+        notes.append(f"using hand {i} ({hands[i].side})")
+    return i, s, notes
 
 
 #: Backends that load a large model from a local folder, and the config field naming it.

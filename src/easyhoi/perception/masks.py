@@ -203,6 +203,12 @@ class ClassicalHOISegmenter:
         lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
         d2 = skin_model(lab, kp).d2(lab)
         hand_m = hand_mask(img, lab, kp, d2, self.iterations, self.seed)
+        prompted = prompts is not None and prompts.has_object_prompt
+        if prompted and prompts.object_points:  # the user's object points are not the hand
+            disks = np.zeros(shape, np.uint8)
+            for u, v in to_work(prompts.object_points):
+                cv2.circle(disks, (int(round(u)), int(round(v))), max(2, int(0.1 * L)), 1, -1)
+            hand_m &= ~disks.astype(bool)
         other = np.zeros(shape, bool)
         for o in others:
             ko = to_work(_check_keypoints(o))
@@ -219,7 +225,6 @@ class ClassicalHOISegmenter:
             min_size,
             max_size=4.0 * ho.AREA_RANGE[1] * scene.hand_area,
         )
-        prompted = prompts is not None and prompts.has_object_prompt
         if prompted:
             pts = to_work(prompts.object_points) if prompts.object_points else np.zeros((0, 2))
             box = None

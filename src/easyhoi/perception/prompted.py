@@ -29,6 +29,29 @@ def _point_disks(shape: tuple[int, int], pts: np.ndarray, radius: float) -> np.n
     return out.astype(bool)
 
 
+#: Weights of the prompted score: the user vouches that the object is there, so the grasp cues
+#: drop out and what remains is whether the region is a whole object: a closed outline with
+#: contrast, not skin, not another hand, not background running out of the crop, of a size
+#: people hold (a wider range than automatic: the user may point at a large or a tiny object).
+PROMPT_WEIGHTS = {"contrast": 3.0, "skin": -3.0, "other_hand": -3.0, "border": -0.7, "size": -1.5}
+PROMPT_AREA = (0.02, 6.0)
+
+
+def prompt_score(cues: np.ndarray) -> np.ndarray:
+    """Score of hypotheses containing the prompt (higher: more likely the whole object)."""
+    c = {k: cues[:, j] for j, k in enumerate(ho.CUES)}
+    lo, hi = PROMPT_AREA
+    area = np.maximum(c["area"], 1e-6)
+    w = PROMPT_WEIGHTS
+    return (
+        w["contrast"] * c["contrast"]
+        + w["skin"] * c["skin"]
+        + w["other_hand"] * c["other_hand"]
+        + w["border"] * np.minimum(c["border"], 3.0)
+        + w["size"] * np.abs(np.log(area / np.clip(area, lo, hi)))
+    )
+
+
 def prompted_object(
     img: np.ndarray,
     props: Proposals,
@@ -82,11 +105,10 @@ def prompted_object(
     j = ho.CUES.index("contrast")
     cand = np.flatnonzero(ok)
     if len(cand) > 40:  # the largest chains: keep the 40 best by the cheap cues
-        cand = cand[np.argsort(-ho.score(cues[cand]) - 4.0 * fit[cand], kind="stable")[:40]]
+        cand = cand[np.argsort(-prompt_score(cues[cand]) - 4.0 * fit[cand], kind="stable")[:40]]
     for i in cand:
         cues[i, j] = ho.outline_contrast(props.mask(props.regions[i]), exclude, smooth, width)
-    # the user vouches for the object: grasp cues matter less than the region being an object
-    s = ho.score(cues) + 4.0 * fit
+    s = prompt_score(cues) + 4.0 * fit
     s = np.where(np.isin(np.arange(n), cand), s, -np.inf)
     best = int(np.argmax(s))
     hyp = ho.Hypotheses(props, cues, s)

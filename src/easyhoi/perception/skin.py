@@ -28,6 +28,8 @@ BONES = tuple((0 if j % 4 == 1 else j - 1, j) for j in range(1, 21))
 PALM = (0, 1, 5, 9, 13, 17)
 #: Squared normalised colour distance below which a pixel matches the skin model (3 sigma).
 SKIN_D2 = 9.0
+#: Looser bound (4 sigma) a hand-mask pixel must meet: shading and blur widen the hand's colours.
+SKIN_LOOSE = 16.0
 
 
 def palm_length(kp: np.ndarray) -> float:
@@ -123,6 +125,10 @@ def hand_mask(
     ).astype(bool)
     init[(core | palm_core) & (d2 < SKIN_D2)] = cv2.GC_FGD
     fg = grabcut(img, init, iterations, seed)
+    # GrabCut's colour mixture also takes an object the fingers press on when its colour is
+    # closer to the hand's than to the crop's background; the hand is skin wherever it is not
+    # drawn over something (the bone cores are kept: a finger may cross an object)
+    fg &= (d2 < SKIN_LOOSE) | core | palm_core
     fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
     fg &= hand_axis(shape, kp) > -0.25 * L  # forearm cut: the hand model ends at the wrist
     keep = [c for c in components(fg) if (c & (core | palm_core)).any()]

@@ -1,0 +1,218 @@
+"""Held-object perception on the development photos, against hand-drawn reference masks.
+
+Per photo: hand detection (MediaPipe) and segmentation of every hand with the chosen hand picked
+as :func:`easyhoi.perception.chain.segment_hands` does in the product. Reported per photo:
+
+* ``hand``: a hand was found; ``hand IoU``: the chosen hand mask against the reference hands;
+* ``IoU``: the chosen object mask against the reference held object(s) (0 when none is output);
+* ``wrong``: an object is output, one is present, and IoU < 0.5;
+* ``missed``: a visibly held object is present and none is output;
+* ``low``: the object confidence is low (< 0.5; the product warns);
+* ``s``: seconds for detection + segmentation;
+* ``IoU 1pt``: the same with one object point, the reference mask's deepest interior point
+  (maximum of its distance transform), as a user's single click.
+
+The photos are split in two fixed halves by a checksum of their name (CRC-32 even: ``tune``,
+odd: ``check``); the summary is given for each half and for all. Reference masks: the JSON
+polygons in ``tests/data/perception_refs`` (``--refs`` to read another folder); photos without
+a reference file are skipped.
+
+Usage::
+
+    python benchmarks/bench_perception.py                       # all photos with references
+    python benchmarks/bench_perception.py --split check --no-point
+    python benchmarks/bench_perception.py --only mow- --sheet /tmp/sheet.png
+
+Results: a Markdown table on stdout and ``benchmarks/results/bench_perception.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import zlib
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+DATA = ROOT.parent / "shared" / "data"
+
+
+def reference(path: Path) -> dict:
+    """Reference of one photo: image path, hand and held-object masks (None: no object)."""
+    ref = json.loads(path.read_text())
+    w, h = int(ref["width"]), int(ref["height"])
+
+    def raster(polys) -> np.ndarray:
+        m = np.zeros((h, w), np.uint8)
+        for p in polys:
+            if len(p) >= 3:
+                cv2.fillPoly(m, [np.round(np.asarray(p, float)).astype(np.int32)], 1)
+        return m.astype(bool)
+
+    hands = raster([p for hd in ref.get("hands", []) for p in hd.get("polygons", [])])
+    held = [o for o in ref.get("objects", []) if o.get("visibly_held", True)]
+    obj = raster([p for o in held for p in o.get("polygons", [])]) if held else None
+    if obj is not None and not obj.any():
+        obj = None
+    return {"image": ref["image"], "hand": hands, "object": obj}
+
+
+def deepest_point(mask: np.ndarray) -> tuple[float, float]:
+    """(x, y) of the mask pixel farthest from its outline."""
+    d = cv2.distanceTransform(np.pad(mask, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    y, x = np.unravel_index(int(np.argmax(d)), d.shape)
+    return float(x), float(y)
+
+
+def iou(a: np.ndarray | None, b: np.ndarray | None) -> float:
+    if a is None or b is None:
+        return 0.0
+    return float((a & b).sum()) / max(1.0, float((a | b).sum()))
+
+
+def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
+    from easyhoi.perception.chain import segment_hands
+    from easyhoi.perception.prompts import Prompts
+
+    t0 = time.perf_counter()
+    hands = detector.detect(rgb)
+    idx, seg, notes = segment_hands(rgb, hands, segmenter) if hands else (None, None, [])
+    secs = time.perf_counter() - t0
+    present = ref["object"] is not None
+    out_obj = seg.object_mask if seg is not None else None
+    conf = seg.confidence.get("object") if seg is not None else None
+    row = {
+        "hand": bool(hands),
+        "hand_iou": iou(seg.hand_mask, ref["hand"]) if seg is not None else 0.0,
+        "present": present,
+        "output": seg is not None,
+        "iou": iou(out_obj, ref["object"]),
+        "confidence": None if conf is None else round(conf.score, 3),
+        "low": bool(conf is None or conf.low),
+        "reasons": [] if conf is None else list(conf.reasons),
+        "seconds": secs,
+        "notes": notes,
+    }
+    row["wrong"] = bool(seg is not None and present and row["iou"] < 0.5)
+    row["missed"] = bool(present and seg is None)
+    row["false_object"] = bool(seg is not None and not present)
+    if with_point and present and hands:
+        p = Prompts(object_points=(deepest_point(ref["object"]),))
+        t1 = time.perf_counter()
+        _, sp, _ = segment_hands(rgb, hands, segmenter, prompts=p)
+        row["seconds_point"] = time.perf_counter() - t1
+        row["iou_point"] = iou(sp.object_mask if sp is not None else None, ref["object"])
+    return row
+
+
+def summary(rows: list[dict]) -> dict:
+    held = [r for r in rows if r["present"]]
+    wrong = [r for r in held if r["wrong"]]
+    right = [r for r in held if r["output"] and not r["wrong"]]
+    pts = [r for r in held if "iou_point" in r]
+    return {
+        "photos": len(rows),
+        "with_object": len(held),
+        "hand_found": float(np.mean([r["hand"] for r in rows])) if rows else 0.0,
+        "iou_ge_0.5": float(np.mean([r["iou"] >= 0.5 for r in held])) if held else 0.0,
+        "mean_iou": float(np.mean([r["iou"] for r in held])) if held else 0.0,
+        "missed": float(np.mean([r["missed"] for r in held])) if held else 0.0,
+        "wrong": len(wrong),
+        "wrong_flagged_low": float(np.mean([r["low"] for r in wrong])) if wrong else 1.0,
+        "right_flagged_low": float(np.mean([r["low"] for r in right])) if right else 0.0,
+        "point_iou_ge_0.5": float(np.mean([r["iou_point"] >= 0.5 for r in pts])) if pts else 0.0,
+        "point_mean_iou": float(np.mean([r["iou_point"] for r in pts])) if pts else 0.0,
+        "median_seconds": float(np.median([r["seconds"] for r in rows])) if rows else 0.0,
+    }
+
+
+def table(rows: list[dict], names: list[str]) -> str:
+    head = "| photo | half | hand | hand IoU | IoU | wrong | missed | conf | low | s | IoU 1pt |"
+    lines = [head, "|" + "---|" * 11]
+    for n, r in zip(names, rows, strict=True):
+        lines.append(
+            f"| {n} | {r['half']} | {'y' if r['hand'] else 'n'} | {r['hand_iou']:.2f} | "
+            f"{r['iou']:.2f} | {'y' if r['wrong'] else ''} | {'y' if r['missed'] else ''} | "
+            f"{'-' if r['confidence'] is None else format(r['confidence'], '.2f')} | "
+            f"{'y' if r['low'] else ''} | {r['seconds']:.2f} | "
+            f"{format(r['iou_point'], '.2f') if 'iou_point' in r else '-'} |"
+        )
+    return "\n".join(lines)
+
+
+def summary_table(summ: dict) -> str:
+    keys = list(next(iter(summ.values())))
+    lines = ["| | " + " | ".join(summ) + " |", "|---|" + "---|" * len(summ)]
+    for k in keys:
+        cells = []
+        for s in summ.values():
+            v = s[k]
+            cells.append(f"{v:.2f}" if isinstance(v, float) else str(v))
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--refs", type=Path, default=ROOT / "tests" / "data" / "perception_refs")
+    ap.add_argument("--split", choices=("all", "tune", "check"), default="all")
+    ap.add_argument("--only", default="", help="substring of the photo names to run")
+    ap.add_argument("--no-point", action="store_true", help="skip the one-point runs")
+    ap.add_argument("--out", type=Path, default=RESULTS / "bench_perception.json")
+    args = ap.parse_args(argv)
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+    from easyhoi.io.image import load_image
+    from easyhoi.perception.masks import ClassicalHOISegmenter
+    from easyhoi.perception.mediapipe_hand import MediaPipeHands
+
+    files = sorted(args.refs.glob("*.json"))
+    if not files:
+        print(f"no reference files in {args.refs}", file=sys.stderr)
+        return 1
+    detector, segmenter = MediaPipeHands(), ClassicalHOISegmenter()
+    rows, names = [], []
+    for f in files:
+        half = "tune" if zlib.crc32(f.stem.encode()) % 2 == 0 else "check"
+        if args.split != "all" and half != args.split:
+            continue
+        ref = reference(f)
+        name = Path(ref["image"]).name
+        if args.only and args.only not in name:
+            continue
+        rgb = load_image(args.data / ref["image"]).rgb
+        row = run_photo(rgb, ref, detector, segmenter, not args.no_point)
+        row["half"] = half
+        rows.append(row)
+        names.append(name)
+        print(
+            f"{name[:44]:44s} {half:5s} iou={row['iou']:.2f} conf={row['confidence']} "
+            f"pt={row.get('iou_point', float('nan')):.2f} {row['seconds']:.2f}s",
+            file=sys.stderr,
+            flush=True,
+        )
+    summ = {"all": summary(rows)}
+    for half in ("tune", "check"):
+        part = [r for r in rows if r["half"] == half]
+        if part and args.split == "all":
+            summ[half] = summary(part)
+    print(table(rows, names))
+    print()
+    print(summary_table(summ))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(
+        json.dumps({"photos": dict(zip(names, rows, strict=True)), "summary": summ}, indent=1)
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
