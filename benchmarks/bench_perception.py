@@ -3,7 +3,8 @@
 Per photo: hand detection (MediaPipe) and segmentation of every hand with the chosen hand picked
 as :func:`easyhoi.perception.chain.segment_hands` does in the product. Reported per photo:
 
-* ``hand``: a hand was found; ``hand IoU``: the chosen hand mask against the reference hands;
+* ``hand``: a hand was found; ``hand IoU``: the chosen hand mask against the reference hand it
+  matches best;
 * ``IoU``: the chosen object mask against the reference held object(s) (0 when none is output);
 * ``wrong``: an object is output, one is present, and IoU < 0.5;
 * ``missed``: a visibly held object is present and none is output;
@@ -45,7 +46,8 @@ DATA = ROOT.parent / "shared" / "data"
 
 
 def reference(path: Path) -> dict:
-    """Reference of one photo: image path, hand and held-object masks (None: no object)."""
+    """Reference of one photo: image path, hand masks (one per hand) and the held-object mask
+    (all visibly held objects together; None: no object)."""
     ref = json.loads(path.read_text())
     w, h = int(ref["width"]), int(ref["height"])
 
@@ -56,7 +58,7 @@ def reference(path: Path) -> dict:
                 cv2.fillPoly(m, [np.round(np.asarray(p, float)).astype(np.int32)], 1)
         return m.astype(bool)
 
-    hands = raster([p for hd in ref.get("hands", []) for p in hd.get("polygons", [])])
+    hands = [raster(hd.get("polygons", [])) for hd in ref.get("hands", [])]
     held = [o for o in ref.get("objects", []) if o.get("visibly_held", True)]
     obj = raster([p for o in held for p in o.get("polygons", [])]) if held else None
     if obj is not None and not obj.any():
@@ -90,7 +92,10 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
     conf = seg.confidence.get("object") if seg is not None else None
     row = {
         "hand": bool(hands),
-        "hand_iou": iou(seg.hand_mask, ref["hand"]) if seg is not None else 0.0,
+        # against the reference hand it matches best (the photo may show several)
+        "hand_iou": max((iou(seg.hand_mask, h) for h in ref["hand"]), default=0.0)
+        if seg is not None
+        else 0.0,
         "present": present,
         "output": seg is not None,
         "iou": iou(out_obj, ref["object"]),

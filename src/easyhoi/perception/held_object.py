@@ -18,7 +18,8 @@ cue                measure
 ``border``         length of the region along the working crop's edge, in L
 ``area``           region area / hand area
 ``far``            share of pixels farther than 2 L from the hand
-``contrast``       1 - share of the outline across which the region's colour continues
+``contrast``       how much the region's colours differ from those of a band around it
+``solidity``       region area / area of its convex hull
 =================  ========================================================================
 
 :func:`score` combines them linearly (weights :data:`WEIGHTS`), a log-odds style sum; the best
@@ -53,6 +54,7 @@ WEIGHTS = {
     "size": -2.0,
     "far": -1.5,
     "contrast": 1.5,
+    "solidity": 1.5,
 }
 #: Area range (x hand area) of held objects; outside it the size penalty grows with log-ratio.
 AREA_RANGE = (0.08, 2.5)
@@ -68,6 +70,7 @@ CUES = (
     "area",
     "far",
     "contrast",
+    "solidity",
 )
 
 
@@ -163,7 +166,8 @@ def _base_stats(props: Proposals, scene: Scene) -> dict[str, np.ndarray]:
 
 
 def describe(props: Proposals, scene: Scene) -> np.ndarray:
-    """(n_regions, len(CUES)) cues of every hypothesis, ``contrast`` left at 0."""
+    """(n_regions, len(CUES)) cues of every hypothesis, ``contrast`` and ``solidity`` left at 0
+    (they need the mask drawn)."""
     st = _base_stats(props, scene)
     L = scene.palm
     grasp_total = max(1.0, float(grasp_zone(props.labels.shape, scene.kp, scene.hand).sum()))
@@ -182,6 +186,7 @@ def describe(props: Proposals, scene: Scene) -> np.ndarray:
             float(st["ring"][idx].sum()) / L,
             size / scene.hand_area,
             float(st["far"][idx].sum()) / size,
+            0.0,
             0.0,
         )
     return out
@@ -205,23 +210,48 @@ def score(cues: np.ndarray) -> np.ndarray:
         + w["size"] * size_pen
         + w["far"] * c["far"]
         + w["contrast"] * c["contrast"]
+        + w["solidity"] * c["solidity"]
     )
 
 
-def outline_contrast(mask: np.ndarray, exclude: np.ndarray, lab: np.ndarray, width: int) -> float:
-    """1 - the share of the band just outside ``mask`` (not on ``exclude``) whose colour continues
-    that of the nearest region pixel (within 10 Lab units). 1: a closed outline with contrast all
-    round; near 0: a piece cut out of a larger uniform region."""
-    dist, labels = cv2.distanceTransformWithLabels(
-        (~mask).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
-    )
-    band = (dist >= 2) & (dist <= width) & ~exclude
-    if not band.any() or not mask.any():
+def colour_codes(lab: np.ndarray) -> np.ndarray:
+    """(h, w) int joint Lab colour bin of every pixel (6 lightness x 8 x 8 chroma bins)."""
+    li = np.clip(lab[..., 0] / 256.0 * 6, 0, 5).astype(np.int64)
+    ai = np.clip((lab[..., 1] - 64.0) / 128.0 * 8, 0, 7).astype(np.int64)
+    bi = np.clip((lab[..., 2] - 64.0) / 128.0 * 8, 0, 7).astype(np.int64)
+    return (li * 8 + ai) * 8 + bi
+
+
+def outline_contrast(mask: np.ndarray, exclude: np.ndarray, codes: np.ndarray, width: int) -> float:
+    """How different the region is from what surrounds it: 1 - the intersection of the colour
+    histograms of the region and of the band ``width`` px wide around it (not on ``exclude``).
+
+    A whole object differs from its surroundings (near 1); a part of an object, or a piece cut
+    out of a larger region, is surrounded by more of the same colours (near 0). Histograms, not
+    pixel pairs, so a textured object is judged as a whole. 1 when there is no band."""
+    if not mask.any():
+        return 0.0
+    k = 2 * width + 1
+    ring = cv2.dilate(mask.astype(np.uint8), np.ones((k, k), np.uint8)).astype(bool)
+    ring &= ~mask & ~exclude
+    if ring.sum() < 4:
         return 1.0
-    zy, zx = np.nonzero(mask)  # DIST_LABEL_PIXEL numbers the zero pixels in raster order from 1
-    idx = labels[band] - 1
-    same = np.linalg.norm(lab[band] - lab[zy[idx], zx[idx]], axis=-1) < 10.0
-    return 1.0 - float(same.mean())
+    n = 6 * 8 * 8
+    hi = np.bincount(codes[mask], minlength=n) / float(mask.sum())
+    ho_ = np.bincount(codes[ring], minlength=n) / float(ring.sum())
+    return 1.0 - float(np.minimum(hi, ho_).sum())
+
+
+def solidity(mask: np.ndarray) -> float:
+    """Area of ``mask`` / area of its convex hull (1 for a convex region). Held objects are
+    mostly compact; a region that wanders around the hand and into the background is not."""
+    vv, uu = np.nonzero(mask)
+    if len(vv) < 3:
+        return 0.0
+    hull = cv2.convexHull(np.stack([uu, vv], 1).astype(np.int32))
+    return float(
+        min(1.0, len(vv) / max(1.0, cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True)))
+    )
 
 
 def rank(props: Proposals, scene: Scene, top: int = 24) -> Hypotheses:
@@ -235,12 +265,14 @@ def rank(props: Proposals, scene: Scene, top: int = 24) -> Hypotheses:
     exclude = cv2.dilate(
         (scene.hand | scene.other_hands).astype(np.uint8), np.ones((5, 5), np.uint8)
     ).astype(bool)
-    width = max(3, int(0.15 * scene.palm))
-    smooth = cv2.GaussianBlur(scene.lab.astype(np.float32), (0, 0), 1.0)
-    j = CUES.index("contrast")
+    width = max(3, int(0.2 * scene.palm))
+    codes = colour_codes(scene.lab)
+    j, k = CUES.index("contrast"), CUES.index("solidity")
     for i in order:
         if np.isfinite(s[i]):
-            cues[i, j] = outline_contrast(props.mask(props.regions[i]), exclude, smooth, width)
+            m = props.mask(props.regions[i])
+            cues[i, j] = outline_contrast(m, exclude, codes, width)
+            cues[i, k] = solidity(m)
     s2 = score(cues)
     s2 = np.where(np.isfinite(s) & np.isin(np.arange(len(s)), order), s2, -np.inf)
     return Hypotheses(props, cues, s2)
@@ -271,11 +303,14 @@ def refine(
     iterations: int,
     seed: int,
     sure: np.ndarray | None = None,
+    margin: float = 0.0,
+    fallback: bool = True,
 ) -> np.ndarray:
     """GrabCut seeded by a hypothesis: its eroded core (and ``sure``) sure foreground, the
-    hypothesis probable foreground, a margin around it probable background, ``forbidden``
-    (the hands) and everything farther sure background. Returns the components overlapping the
-    core; falls back to ``mask`` when GrabCut moved far from it (IoU < 0.5)."""
+    hypothesis probable foreground, a margin around it (half its radius, at least ``margin`` px)
+    probable background, ``forbidden`` (the hands) and everything farther sure background.
+    Returns the components overlapping the core; with ``fallback``, ``mask`` itself when
+    GrabCut moved far from it (IoU < 0.5)."""
     if not mask.any():
         return mask
     r = max(2.0, np.sqrt(mask.sum() / np.pi))
@@ -285,7 +320,7 @@ def refine(
         core |= sure
     dist = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 5)
     init = np.full(mask.shape, cv2.GC_BGD, np.uint8)
-    init[dist <= max(3.0, 0.5 * r)] = cv2.GC_PR_BGD
+    init[dist <= max(3.0, 0.5 * r, margin)] = cv2.GC_PR_BGD
     init[mask] = cv2.GC_PR_FGD
     init[core] = cv2.GC_FGD
     init[forbidden & ~core] = cv2.GC_BGD
@@ -295,6 +330,37 @@ def refine(
         keep = np.unique(cc[core & fg])
         fg = np.isin(cc, keep[keep > 0])
     fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+    if not fallback:
+        return fg if fg.any() else mask
     inter = float((fg & mask).sum())
     iou = inter / max(1.0, float((fg | mask).sum()))
     return fg if iou >= 0.5 else mask
+
+
+def mask_cues(mask: np.ndarray, scene: Scene) -> np.ndarray:
+    """(len(CUES),) cues of an arbitrary (h, w) bool mask, contrast included."""
+    labels = np.where(mask, 0, -1)
+    props = Proposals(labels=labels, regions=(frozenset((0,)),), sizes=np.array([mask.sum()]))
+    cues = describe(props, scene)[0]
+    exclude = cv2.dilate(
+        (scene.hand | scene.other_hands).astype(np.uint8), np.ones((5, 5), np.uint8)
+    ).astype(bool)
+    width = max(3, int(0.2 * scene.palm))
+    cues[CUES.index("contrast")] = outline_contrast(mask, exclude, colour_codes(scene.lab), width)
+    cues[CUES.index("solidity")] = solidity(mask)
+    return cues
+
+
+def distinct_best(hyp: Hypotheses, k: int, max_iou: float = 0.6) -> list[int]:
+    """Indices of up to ``k`` best-scoring hypotheses, each overlapping the ones before it by
+    less than ``max_iou``."""
+    regs = hyp.proposals.regions
+    out: list[int] = []
+    for i in np.argsort(-hyp.scores, kind="stable"):
+        if not np.isfinite(hyp.scores[i]):
+            break
+        if all(overlap(hyp.proposals, regs[i], regs[j]) < max_iou for j in out):
+            out.append(int(i))
+            if len(out) == k:
+                break
+    return out

@@ -34,6 +34,7 @@ from easyhoi.perception.skin import (  # noqa: F401  (re-exported: the masks' dr
     PALM,
     components,
     draw_skeleton,
+    fill_holes,
     hand_mask,
     palm_length,
     skin_model,
@@ -121,6 +122,8 @@ class ClassicalHOISegmenter:
         Felzenszwalb scale at ``work_side`` (larger: fewer, bigger base segments).
     min_score : float
         Best hypothesis score below which the hand holds no object.
+    refine_top : int
+        Number of best distinct hypotheses refined by GrabCut and scored again.
     iterations : int
         GrabCut iterations.
     seed : int
@@ -134,8 +137,10 @@ class ClassicalHOISegmenter:
         segment_scale: float = 150.0,
         min_score: float = 0.0,
         iterations: int = 5,
+        refine_top: int = 1,
         seed: int = 0,
     ):
+        self.refine_top = int(refine_top)
         self.crop_factor = float(crop_factor)
         self.work_side = int(work_side)
         self.segment_scale = float(segment_scale)
@@ -202,13 +207,14 @@ class ClassicalHOISegmenter:
         shape = img.shape[:2]
         lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
         d2 = skin_model(lab, kp).d2(lab)
-        hand_m = hand_mask(img, lab, kp, d2, self.iterations, self.seed)
         prompted = prompts is not None and prompts.has_object_prompt
+        disks = None
         if prompted and prompts.object_points:  # the user's object points are not the hand
             disks = np.zeros(shape, np.uint8)
             for u, v in to_work(prompts.object_points):
-                cv2.circle(disks, (int(round(u)), int(round(v))), max(2, int(0.1 * L)), 1, -1)
-            hand_m &= ~disks.astype(bool)
+                cv2.circle(disks, (int(round(u)), int(round(v))), max(2, int(0.05 * L)), 1, -1)
+            disks = disks.astype(bool)
+        hand_m = hand_mask(img, lab, kp, d2, self.iterations, self.seed, not_hand=disks)
         other = np.zeros(shape, bool)
         for o in others:
             ko = to_work(_check_keypoints(o))
@@ -237,14 +243,12 @@ class ClassicalHOISegmenter:
             has_object = bool(obj.any())
         else:
             hyp = ho.rank(props, scene) if props.regions else None
-            best = None
+            best, obj = None, np.zeros(shape, bool)
             if hyp is not None and np.isfinite(hyp.scores).any():
-                best = int(np.argmax(hyp.scores))
+                best, obj, hyp = self._refine_best(img, props, scene, hyp, excl)
             has_object = best is not None and hyp.scores[best] >= self.min_score
-            obj = np.zeros(shape, bool)
-            if has_object:
-                raw = props.mask(props.regions[best])
-                obj = ho.refine(img, raw, excl, self.iterations, self.seed)
+            if not has_object:
+                obj = np.zeros(shape, bool)
         obj &= ~hand_m
         runner = ho.runner_up(hyp, best) if (hyp is not None and best is not None) else None
         conf = {
@@ -286,3 +290,24 @@ class ClassicalHOISegmenter:
                 "hypotheses": top,
             },
         )
+
+    def _refine_best(self, img, props, scene, hyp, excl):
+        """Refine the ``refine_top`` best distinct hypotheses by GrabCut and score the refined
+        masks with the same cues: GrabCut's colour mixtures gather the parts of a textured
+        object that the proposals split. Returns (index, refined mask, hypotheses with the
+        refined scores)."""
+        cues, scores = hyp.cues.copy(), hyp.scores.copy()
+        masks = {}
+        for i in ho.distinct_best(hyp, self.refine_top):
+            raw = props.mask(props.regions[i])
+            m = fill_holes(ho.refine(img, raw, excl, self.iterations, self.seed)) & ~excl
+            if not m.any():
+                continue
+            cues[i] = ho.mask_cues(m, scene)
+            scores[i] = ho.score(cues[i][None])[0]
+            masks[i] = m
+        out = ho.Hypotheses(props, cues, scores)
+        if not masks:
+            return None, np.zeros(img.shape[:2], bool), out
+        best = max(masks, key=lambda i: scores[i])
+        return best, masks[best], out

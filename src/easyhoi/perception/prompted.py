@@ -20,6 +20,7 @@ import numpy as np
 
 from easyhoi.perception import held_object as ho
 from easyhoi.perception.proposals import Proposals
+from easyhoi.perception.skin import fill_holes
 
 
 def _point_disks(shape: tuple[int, int], pts: np.ndarray, radius: float) -> np.ndarray:
@@ -33,8 +34,8 @@ def _point_disks(shape: tuple[int, int], pts: np.ndarray, radius: float) -> np.n
 #: drop out and what remains is whether the region is a whole object: a closed outline with
 #: contrast, not skin, not another hand, not background running out of the crop, of a size
 #: people hold (a wider range than automatic: the user may point at a large or a tiny object).
-PROMPT_WEIGHTS = {"contrast": 3.0, "skin": -3.0, "other_hand": -3.0, "border": -0.7, "size": -1.5}
-PROMPT_AREA = (0.02, 6.0)
+PROMPT_WEIGHTS = {"contrast": 3.0, "skin": -3.0, "other_hand": -3.0, "border": -0.2, "size": -3.0}
+PROMPT_AREA = (0.02, 4.0)
 
 
 def prompt_score(cues: np.ndarray) -> np.ndarray:
@@ -100,24 +101,49 @@ def prompted_object(
     if not ok.any():
         return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None
     exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    smooth = cv2.GaussianBlur(scene.lab.astype(np.float32), (0, 0), 1.0)
-    width = max(3, int(0.15 * L))
-    j = ho.CUES.index("contrast")
+    codes = ho.colour_codes(scene.lab)
+    width = max(3, int(0.2 * L))
+    j, k = ho.CUES.index("contrast"), ho.CUES.index("solidity")
     cand = np.flatnonzero(ok)
     if len(cand) > 40:  # the largest chains: keep the 40 best by the cheap cues
         cand = cand[np.argsort(-prompt_score(cues[cand]) - 4.0 * fit[cand], kind="stable")[:40]]
     for i in cand:
-        cues[i, j] = ho.outline_contrast(props.mask(props.regions[i]), exclude, smooth, width)
+        m = props.mask(props.regions[i])
+        cues[i, j] = ho.outline_contrast(m, exclude, codes, width)
+        cues[i, k] = ho.solidity(m)
     s = prompt_score(cues) + 4.0 * fit
     s = np.where(np.isin(np.arange(n), cand), s, -np.inf)
-    best = int(np.argmax(s))
     hyp = ho.Hypotheses(props, cues, s)
-    raw = props.mask(props.regions[best]) | sure
     if boxmask is not None:
-        raw &= boxmask
         forbidden = forbidden | ~boxmask
-    obj = ho.refine(img, raw, forbidden, iterations, seed, sure=sure)
-    return obj | (sure & ~forbidden), hyp, best
+    # the proposals break textured objects into parts: each of the best distinct levels seeds
+    # GrabCut (whose colour mixtures gather an object's several colours), and the refined
+    # masks are scored again
+    best, obj, best_s = None, None, -np.inf
+    seeds = [
+        (i, (props.mask(props.regions[i]) | sure) & ~forbidden) for i in ho.distinct_best(hyp, 4)
+    ]
+    if len(pts):  # disks around the points: GrabCut finds objects the proposals split
+        for r in (0.25, 0.5, 1.0):
+            seeds.append((None, _point_disks(shape, pts, r * L) & ~forbidden))
+    for i, raw in seeds:
+        m = ho.refine(
+            img, raw, forbidden, iterations, seed, sure=sure, margin=0.5 * L, fallback=False
+        ) | (sure & ~forbidden)
+        m = fill_holes(m) & ~forbidden
+        if sure.any():  # the object is the part that contains the user's points
+            n_cc, cc = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
+            keep = np.unique(cc[sure & m])
+            m = np.isin(cc, keep[keep > 0])
+        c = ho.mask_cues(m, scene)[None]
+        f = 0.0
+        if boxmask is not None:
+            a_in = float((m & boxmask).sum())
+            f = (a_in / max(1.0, float(m.sum()))) * (a_in / max(1.0, float(boxmask.sum())))
+        sc = float(prompt_score(c)[0]) + 4.0 * f
+        if sc > best_s:
+            best, obj, best_s = i, m, sc
+    return obj, hyp, best
 
 
 def _grabcut_only(img, sure, boxmask, forbidden, iterations, seed) -> np.ndarray:

@@ -12,7 +12,7 @@ Hand mask M_h (GrabCut seeded by the skeleton):
     (wrist, thumb CMC, index/middle/ring/pinky MCP) filled: "probably foreground".
   * Thin bone cores (``0.08 L``) and the eroded palm that match the colour model: "sure
     foreground" (occluded fingers drawn over an object do not match and stay "probable").
-    Far from the skeleton (> ``0.6 L``): "sure background".
+    Farther than ``HAND_REACH`` L from the wide skeleton: "sure background".
   * GrabCut refines; the component(s) overlapping the cores are kept, and the forearm is cut at
     ``0.25 L`` behind the wrist (the hand model ends at the wrist).
 """
@@ -30,6 +30,9 @@ PALM = (0, 1, 5, 9, 13, 17)
 SKIN_D2 = 9.0
 #: Looser bound (4 sigma) a hand-mask pixel must meet: shading and blur widen the hand's colours.
 SKIN_LOOSE = 16.0
+#: Farthest a hand pixel lies outside the 0.3 L wide skeleton, in palm lengths: a finger is about
+#: 0.2 L wide, so this leaves room for keypoint error without taking in a held object.
+HAND_REACH = 0.3
 
 
 def palm_length(kp: np.ndarray) -> float:
@@ -107,16 +110,26 @@ def components(mask: np.ndarray, min_area: int = 1) -> list[np.ndarray]:
 
 
 def hand_mask(
-    img: np.ndarray, lab: np.ndarray, kp: np.ndarray, d2: np.ndarray, iterations: int, seed: int
+    img: np.ndarray,
+    lab: np.ndarray,
+    kp: np.ndarray,
+    d2: np.ndarray,
+    iterations: int,
+    seed: int,
+    not_hand: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(h, w) bool visible hand mask (see the module docstring); ``d2`` from the skin model."""
+    """(h, w) bool visible hand mask (see the module docstring); ``d2`` from the skin model.
+
+    ``not_hand`` pixels (the user's object points) are sure background: GrabCut then learns the
+    object's colours from them and keeps a skin-coloured object the fingers cover out of the
+    hand."""
     shape = img.shape[:2]
     L = palm_length(kp)
     core = draw_skeleton(shape, kp, 0.08 * L, palm=False)
     wide = draw_skeleton(shape, kp, 0.3 * L, palm=True)
     dist = cv2.distanceTransform((~wide).astype(np.uint8), cv2.DIST_L2, 5)
     init = np.full(shape, cv2.GC_PR_BGD, np.uint8)
-    init[dist > 0.6 * L] = cv2.GC_BGD
+    init[dist > HAND_REACH * L] = cv2.GC_BGD
     init[wide] = cv2.GC_PR_FGD
     init[wide & (d2 > 25.0)] = cv2.GC_PR_BGD
     palm_core = cv2.erode(
@@ -124,12 +137,24 @@ def hand_mask(
         cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (int(0.3 * L) | 1,) * 2),
     ).astype(bool)
     init[(core | palm_core) & (d2 < SKIN_D2)] = cv2.GC_FGD
+    if not_hand is not None:
+        init[not_hand] = cv2.GC_BGD
     fg = grabcut(img, init, iterations, seed)
     # GrabCut's colour mixture also takes an object the fingers press on when its colour is
     # closer to the hand's than to the crop's background; the hand is skin wherever it is not
     # drawn over something (the bone cores are kept: a finger may cross an object)
     fg &= (d2 < SKIN_LOOSE) | core | palm_core
+    if not_hand is not None:
+        fg &= ~not_hand
     fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
     fg &= hand_axis(shape, kp) > -0.25 * L  # forearm cut: the hand model ends at the wrist
     keep = [c for c in components(fg) if (c & (core | palm_core)).any()]
     return np.any(keep, axis=0) if keep else (fg & wide)
+
+
+def fill_holes(mask: np.ndarray) -> np.ndarray:
+    """(H, W) bool ``mask`` with enclosed background regions filled."""
+    m = np.pad(mask.astype(np.uint8), 1)
+    flood = m.copy()
+    cv2.floodFill(flood, np.zeros((m.shape[0] + 2, m.shape[1] + 2), np.uint8), (0, 0), 1)
+    return (m | (1 - flood)).astype(bool)[1:-1, 1:-1]
