@@ -50,12 +50,14 @@ WEIGHTS = {
     "contact": 0.6,
     "skin": -3.0,
     "other_hand": -3.0,
-    "border": -1.2,
+    "border": -1.0,
     "size": -2.0,
     "far": -1.5,
     "contrast": 1.5,
     "solidity": 1.5,
 }
+#: Border lengths (in L) beyond this add no penalty: by then the region surrounds the crop.
+BORDER_CAP = 8.0
 #: Area range (x hand area) of held objects; outside it the size penalty grows with log-ratio.
 AREA_RANGE = (0.08, 2.5)
 #: Cue columns in :attr:`Hypotheses.cues`.
@@ -192,21 +194,31 @@ def describe(props: Proposals, scene: Scene) -> np.ndarray:
     return out
 
 
-def score(cues: np.ndarray) -> np.ndarray:
-    """Log-odds style score of (n, len(CUES)) cues; higher is more likely the held object."""
+def score(cues: np.ndarray, gated: bool = True) -> np.ndarray:
+    """Log-odds style score of (n, len(CUES)) cues; higher is more likely the held object.
+
+    The grasp evidence (fingers, thumb, grasp zone, contact) counts in proportion to how much
+    the region looks like an object (``contrast`` and ``solidity``): a thin halo of pixels
+    around the hand touches every finger but is no object. ``gated=False`` (the cheap first
+    ranking, before those two cues are measured) counts it fully."""
     c = {k: cues[:, j] for j, k in enumerate(CUES)}
     lo, hi = AREA_RANGE
     area = np.maximum(c["area"], 1e-6)
     size_pen = np.abs(np.log(area / np.clip(area, lo, hi)))
     w = WEIGHTS
-    return (
+    grasp = (
         w["fingers"] * np.minimum(c["fingers"], 4.0)
         + w["thumb"] * c["thumb"]
         + w["grasp"] * c["grasp"]
         + w["contact"] * np.minimum(c["contact"], 2.0)
+    )
+    if gated:
+        grasp = grasp * (0.25 + 0.75 * c["contrast"]) * (0.25 + 0.75 * c["solidity"])
+    return (
+        grasp
         + w["skin"] * c["skin"]
         + w["other_hand"] * c["other_hand"]
-        + w["border"] * np.minimum(c["border"], 3.0)
+        + w["border"] * np.minimum(c["border"], BORDER_CAP)
         + w["size"] * size_pen
         + w["far"] * c["far"]
         + w["contrast"] * c["contrast"]
@@ -258,7 +270,7 @@ def rank(props: Proposals, scene: Scene, top: int = 24) -> Hypotheses:
     """Cues and scores of all hypotheses; the ``top`` best by the cheap cues also get
     ``contrast`` (the only cue that needs the mask drawn)."""
     cues = describe(props, scene)
-    s = score(cues)
+    s = score(cues, gated=False)
     touching = cues[:, CUES.index("contact")] > 0
     s = np.where(touching, s, -np.inf)  # a held object touches the hand on its grip side
     order = np.argsort(-s, kind="stable")[:top]

@@ -135,7 +135,7 @@ class ClassicalHOISegmenter:
         crop_factor: float = 3.0,
         work_side: int = 256,
         segment_scale: float = 150.0,
-        min_score: float = 0.0,
+        min_score: float = 1.0,
         iterations: int = 5,
         refine_top: int = 1,
         seed: int = 0,

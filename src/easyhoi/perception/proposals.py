@@ -88,6 +88,26 @@ def adjacency(labels: np.ndarray) -> set[tuple[int, int]]:
     return pairs
 
 
+def fill_excluded(labels: np.ndarray) -> np.ndarray:
+    """``labels`` with every excluded pixel (-1) given the label of the nearest segment.
+
+    Used for adjacency only: the parts of an object on either side of a finger become
+    neighbours, so the grouping can join an object the fingers cross."""
+    import cv2
+
+    ex = labels < 0
+    if not ex.any() or ex.all():
+        return labels
+    _, idx = cv2.distanceTransformWithLabels(
+        ex.astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
+    )
+    zy, zx = np.nonzero(~ex)  # DIST_LABEL_PIXEL numbers the zero pixels in raster order from 1
+    out = labels.copy()
+    k = idx[ex] - 1
+    out[ex] = labels[zy[k], zx[k]]
+    return out
+
+
 def _histograms(lab: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
     """(n, 3 * BINS) L1-normalised Lab colour histograms of the base segments."""
     ok = labels >= 0
@@ -145,7 +165,7 @@ def group(
     size = list(sizes)
     box = [tuple(b) for b in bbox]
     neigh: dict[int, set[int]] = {i: set() for i in range(n)}
-    for a, b in adjacency(labels):
+    for a, b in adjacency(fill_excluded(labels)):
         neigh[a].add(b)
         neigh[b].add(a)
 
