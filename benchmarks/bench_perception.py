@@ -66,6 +66,18 @@ def reference(path: Path) -> dict:
     return {"image": ref["image"], "hand": hands, "object": obj}
 
 
+def fit_to(ref: dict, shape: tuple[int, int]) -> dict:
+    """The reference with its masks resampled to ``shape`` (the photo loader may downscale
+    very large photos)."""
+
+    def fit(m):
+        if m is None or m.shape == tuple(shape):
+            return m
+        return cv2.resize(m.astype(np.uint8), shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+
+    return {**ref, "hand": [fit(h) for h in ref["hand"]], "object": fit(ref["object"])}
+
+
 def deepest_point(mask: np.ndarray) -> tuple[float, float]:
     """(x, y) of the mask pixel farthest from its outline."""
     d = cv2.distanceTransform(np.pad(mask, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
@@ -194,6 +206,7 @@ def main(argv=None) -> int:
         if args.only and args.only not in name:
             continue
         rgb = load_image(args.data / ref["image"]).rgb
+        ref = fit_to(ref, rgb.shape[:2])
         row = run_photo(rgb, ref, detector, segmenter, not args.no_point)
         row["half"] = half
         rows.append(row)

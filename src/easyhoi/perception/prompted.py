@@ -3,14 +3,15 @@ or filling the user's box.
 
 A point says where the object is but not how far it extends. The hypotheses of the proposal
 hierarchy that contain every point form a chain from a single segment up to large parts of the
-crop; the cues of :mod:`.held_object` (with the outline contrast measured on every member of
-the chain) pick the level that looks most like a whole object held by the hand. That region
-seeds GrabCut with the points as sure foreground and the hands as sure background.
+crop. :func:`prompt_score` ranks them by whether they look like a whole object (outline
+contrast, solidity, size, not another hand); the best distinct levels (up to four) each seed
+GrabCut with the points as sure foreground and the hands as sure background (GrabCut's colour
+mixtures gather the parts of a textured object the proposals split), the refined masks are
+scored again and the best one is kept, restricted to the parts that contain the points.
 
-A box says how far it extends: the hypotheses are scored by how well they fill it (IoU with the
-box's inscribed ellipse-free rectangle is too strict for round objects, so the share of the region
-inside the box times the share of the box it covers), and GrabCut runs with everything outside
-the box as sure background.
+A box says how far the object extends: hypotheses must lie mostly inside it and are favoured by
+how well they fill it (share of the region inside the box times share of the box it covers), and
+everything outside the box is sure background for GrabCut.
 """
 
 from __future__ import annotations
@@ -32,9 +33,17 @@ def _point_disks(shape: tuple[int, int], pts: np.ndarray, radius: float) -> np.n
 
 #: Weights of the prompted score: the user vouches that the object is there, so the grasp cues
 #: drop out and what remains is whether the region is a whole object: a closed outline with
-#: contrast, not skin, not another hand, not background running out of the crop, of a size
-#: people hold (a wider range than automatic: the user may point at a large or a tiny object).
-PROMPT_WEIGHTS = {"contrast": 3.0, "skin": -3.0, "other_hand": -3.0, "border": -0.2, "size": -3.0}
+#: contrast, compact, not another hand, of a size people hold (a wider range than automatic: the
+#: user may point at a large or a tiny object). Skin colour and the picture's edge weigh little:
+#: the user may point at a beige object or one that runs out of the photo.
+PROMPT_WEIGHTS = {
+    "contrast": 3.0,
+    "solidity": 1.0,
+    "skin": -1.0,
+    "other_hand": -3.0,
+    "border": -0.2,
+    "size": -3.0,
+}
 PROMPT_AREA = (0.02, 4.0)
 
 
@@ -46,6 +55,7 @@ def prompt_score(cues: np.ndarray) -> np.ndarray:
     w = PROMPT_WEIGHTS
     return (
         w["contrast"] * c["contrast"]
+        + w["solidity"] * c["solidity"]
         + w["skin"] * c["skin"]
         + w["other_hand"] * c["other_hand"]
         + w["border"] * np.minimum(c["border"], 3.0)
@@ -123,9 +133,6 @@ def prompted_object(
     seeds = [
         (i, (props.mask(props.regions[i]) | sure) & ~forbidden) for i in ho.distinct_best(hyp, 4)
     ]
-    if len(pts):  # disks around the points: GrabCut finds objects the proposals split
-        for r in (0.25, 0.5, 1.0):
-            seeds.append((None, _point_disks(shape, pts, r * L) & ~forbidden))
     for i, raw in seeds:
         m = ho.refine(
             img, raw, forbidden, iterations, seed, sure=sure, margin=0.5 * L, fallback=False
