@@ -87,12 +87,11 @@ def _read_file(path: Path) -> dict:
         except (OSError, json.JSONDecodeError) as exc:
             raise InvalidInputError(f"cannot read {path} as JSON: {exc}") from None
     if suffix in (".pkl", ".pickle"):
-        from easyhoi.hand.safe_pickle import RestrictedUnpickler, to_plain
+        from easyhoi.hand.safe_pickle import load_restricted, to_plain
 
         try:
-            with path.open("rb") as fh:
-                data = to_plain(RestrictedUnpickler(fh).load())
-        except UnsafeFileError:
+            data = to_plain(load_restricted(path, "hand-parameter pickle"))
+        except (UnsafeFileError, InvalidInputError):
             raise
         except Exception as exc:  # noqa: BLE001 - any decoding failure means a corrupt file
             raise InvalidInputError(f"{path} is not a readable pickle ({exc})") from None
