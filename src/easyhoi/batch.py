@@ -39,7 +39,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from easyhoi.distributed import Task, TaskResult, execute
-from easyhoi.errors import InvalidInputError
+from easyhoi.errors import ExitCode, InvalidInputError
 
 __all__ = [
     "IMAGE_EXTENSIONS",
@@ -477,8 +477,8 @@ class BatchSummary:
 
     @property
     def exit_code(self) -> int:
-        """0 when nothing failed, 8 (some photos of a batch failed) otherwise."""
-        return 8 if self.failed else 0
+        """``ExitCode.OK`` when nothing failed, ``ExitCode.BATCH_PARTIAL`` otherwise."""
+        return ExitCode.BATCH_PARTIAL if self.failed else ExitCode.OK
 
     def line(self) -> str:
         """One-line human summary."""

@@ -1,9 +1,6 @@
 """The ``easyhoi`` command line.
 
-Exit codes: 0 success; 1 other easyhoi error; 2 invalid input (bad file, wrong size, bad
-option); 3 missing optional dependency; 4 backend failure; 5 no hand found; 6 no held object;
-7 optimization failure; 8 some photos of a batch failed; 70 internal error (a bug: please
-report it with ``--verbose`` output); 130 interrupted.
+Exit codes are :class:`easyhoi.errors.ExitCode` (listed by ``easyhoi --help``).
 """
 
 from __future__ import annotations
@@ -14,13 +11,9 @@ import sys
 from pathlib import Path
 
 from easyhoi import __version__
-from easyhoi.errors import EasyHOIError, InvalidInputError
+from easyhoi.errors import EXIT_CODE_MEANINGS, EasyHOIError, ExitCode, InvalidInputError
 
 logger = logging.getLogger("easyhoi")
-
-EXIT_BATCH_PARTIAL = 8
-EXIT_INTERNAL = 70
-EXIT_INTERRUPTED = 130
 
 
 # ----------------------------------------------------------------------------------------------
@@ -140,7 +133,7 @@ def cmd_reconstruct(args) -> int:
         _say(args, f"{image}: done in {rec.seconds:.1f} s -> {where} (open report.html)")
         for f in rec.files:
             logger.info("wrote %s", f)
-    return EXIT_BATCH_PARTIAL if failures else 0
+    return ExitCode.BATCH_PARTIAL if failures else ExitCode.OK
 
 
 def cmd_batch(args) -> int:
@@ -432,11 +425,17 @@ def _set_torch_threads() -> None:
     torch.set_num_threads(n)
 
 
+def exit_codes_help() -> str:
+    """The exit-code table as ``easyhoi --help`` prints it."""
+    rows = [f"  {int(code):3d}  {text}" for code, text in EXIT_CODE_MEANINGS.items()]
+    return "exit codes:\n" + "\n".join(rows)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="easyhoi",
         description="Reconstruct a 3D hand holding an object from one photo, on a CPU.",
-        epilog=__doc__.split("\n\n", 1)[1] if __doc__ else None,
+        epilog=exit_codes_help(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"easyhoi {__version__}")
@@ -555,7 +554,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
-        return 2
+        return int(ExitCode.INVALID_INPUT)
     level = logging.DEBUG if args.verbose else (logging.ERROR if args.quiet else logging.WARNING)
     # --verbose opens easyhoi's own debug log only; other libraries (matplotlib, numba, ...)
     # stay at warnings
@@ -569,15 +568,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.verbose:
             logger.exception("failed")
         _err(f"error: {type(exc).__name__}: {exc}")
-        return exc.exit_code
+        return int(exc.exit_code)
     except KeyboardInterrupt:
         _err("interrupted")
-        return EXIT_INTERRUPTED
+        return int(ExitCode.INTERRUPTED)
     except Exception as exc:  # noqa: BLE001 - last line of defence: no traceback for users
         if args.verbose:
             logger.exception("internal error")
         _err(f"internal error: {type(exc).__name__}: {exc} (rerun with --verbose for details)")
-        return EXIT_INTERNAL
+        return int(ExitCode.INTERNAL)
 
 
 if __name__ == "__main__":  # pragma: no cover

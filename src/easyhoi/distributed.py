@@ -45,7 +45,12 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 
-from easyhoi.errors import EasyHOIError, InvalidInputError, MissingDependencyError
+from easyhoi.errors import (
+    EasyHOIError,
+    ExitCode,
+    InvalidInputError,
+    MissingDependencyError,
+)
 
 __all__ = [
     "ENGINES",
@@ -64,7 +69,7 @@ logger = logging.getLogger(__name__)
 ENGINES = ("local", "ray", "inline")
 
 #: Exit code recorded for exceptions that are not :class:`EasyHOIError` (a bug), as in the CLI.
-EXIT_INTERNAL = 70
+EXIT_INTERNAL = ExitCode.INTERNAL
 
 #: Error type recorded when a worker process dies while running a task.
 WORKER_DIED = "WorkerDied"
