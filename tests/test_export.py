@@ -140,7 +140,7 @@ def test_exports_reject_non_results(tmp_path):
 def test_pictures_of_a_large_photo_are_drawn_at_picture_size():
     import torch
 
-    from easyhoi.io.result_folder import picture_scale
+    from easyhoi.viz.report import picture_scale
     from tests.hoi_scene import make_input
 
     big_h, big_w = 1200, 1600

@@ -23,6 +23,7 @@ import ast
 import dataclasses
 import inspect
 import json
+import math
 import textwrap
 import types
 import typing
@@ -36,6 +37,7 @@ __all__ = [
     "CameraStageConfig",
     "ContactStageConfig",
     "EasyHOIConfig",
+    "MAX_SEED",
     "OptimConfig",
     "PRESETS",
     "PerceptionConfig",
@@ -47,6 +49,22 @@ __all__ = [
     "to_dict",
     "with_overrides",
 ]
+
+
+#: Largest accepted seed (numpy's seed range; OpenCV's backends get the seed modulo 2**31).
+MAX_SEED = 2**32 - 1
+
+
+def _finite(obj) -> None:
+    """Every float of a config dataclass (tuples included) is finite."""
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        values = v if isinstance(v, tuple) else (v,)
+        for x in values:
+            if isinstance(x, float) and not math.isfinite(x):
+                raise InvalidInputError(
+                    f"{type(obj).__name__}.{f.name} must be a finite number, got {v!r}"
+                )
 
 
 def _positive(obj, *names: str) -> None:
@@ -118,6 +136,7 @@ class CameraStageConfig:
     """Optimise fx and fy together with the 6-DoF pose (8 DoF); False keeps the focal fixed."""
 
     def __post_init__(self):
+        _finite(self)
         _positive(self, "lr", "sinkhorn_grid", "sinkhorn_blur", "init_fov_deg", "init_distance")
         _non_negative(self, "max_iters", "stop_loss", "patience", "min_delta")
         _non_negative(self, "iou_weight", "sinkhorn_weight")
@@ -179,6 +198,7 @@ class ContactStageConfig:
     object units: the grasp's contact zones on the surface)."""
 
     def __post_init__(self):
+        _finite(self)
         _positive(self, "lr", "peel_layers")
         _non_negative(self, "max_iters", "stop_loss", "patience", "min_delta", "icp_iters")
         _non_negative(self, "icp_tolerance", "rotation_prior_weight", "scan_tie_margin")
@@ -248,6 +268,7 @@ class RefineStageConfig:
     """Optimise the articulation theta."""
 
     def __post_init__(self):
+        _finite(self)
         _positive(self, "lr_global", "lr_pose", "sdf_resolution")
         if self.lr_transl is not None and not self.lr_transl > 0:
             raise InvalidInputError(
@@ -309,8 +330,12 @@ class OptimConfig:
     """Record the losses in the stage history every this many iterations (the last always)."""
 
     def __post_init__(self):
+        _finite(self)
         _positive(self, "render_size", "history_every")
-        _non_negative(self, "seed")
+        if not 0 <= self.seed <= MAX_SEED:
+            raise InvalidInputError(
+                f"OptimConfig.seed must be in [0, {MAX_SEED}], got {self.seed!r}"
+            )
         if self.dtype not in _DTYPES:
             raise InvalidInputError(
                 f"OptimConfig.dtype must be one of {_DTYPES}, got {self.dtype!r}"
@@ -365,6 +390,7 @@ class EasyHOIConfig:
     """Name of the preset this configuration came from (provenance only)."""
 
     def __post_init__(self):
+        _finite(self)
         if self.hand_model not in _HAND_MODELS:
             raise InvalidInputError(
                 f"hand_model must be one of {_HAND_MODELS}, got {self.hand_model!r}"

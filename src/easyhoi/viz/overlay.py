@@ -9,14 +9,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from easyhoi.errors import EasyHOIError, InvalidInputError
+from easyhoi.errors import InvalidInputError
 from easyhoi.hoi import HOIResult, StageResult
 from easyhoi.structures import Camera
 from easyhoi.viz.shade import HAND_COLOR, OBJECT_COLOR, Render, SceneMesh, render_shaded
 
 __all__ = [
     "OVERLAY_ALPHA",
-    "hand_model_for",
     "photo_camera",
     "render_overlay",
     "result_meshes",
@@ -45,16 +44,6 @@ def result_meshes(
     result = _check_result(result)
     hand = SceneMesh(result.hand_vertices, result.hand_faces, hand_color, "hand")
     return [hand, _object_mesh(result, object_color)]
-
-
-def hand_model_for(result: HOIResult):
-    """The result's hand model in float64, or None when it cannot be loaded (MANO absent)."""
-    from easyhoi.hand import load_hand_model
-
-    try:
-        return load_hand_model(result.hand_model, dtype=torch.float64)
-    except (EasyHOIError, OSError):
-        return None
 
 
 def stage_meshes(
