@@ -115,9 +115,7 @@ def test_the_seed_reaches_the_perception_backends(photo, monkeypatch):
     assert ("segmenter", 5) in seeds and ("amodal", 5) in seeds
     inp0, _ = perceive(image, resolve_run(seed=0))
     # GrabCut's initial clustering is seeded: another seed gives (slightly) other masks
-    assert (inp0.amodal_mask != inp5.amodal_mask).any() or (
-        inp0.hand_mask != inp5.hand_mask
-    ).any()
+    assert (inp0.amodal_mask != inp5.amodal_mask).any() or (inp0.hand_mask != inp5.hand_mask).any()
     assert backend_seed(MAX_SEED) == 2**31 - 1 and backend_seed(7) == 7
 
 
