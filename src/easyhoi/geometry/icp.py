@@ -280,7 +280,7 @@ def icp(
 def align_translation_scale(
     pred_pts, gt_pts, max_iters: int = 100, tol: float = 1e-10
 ) -> ICPResult:
-    """Evaluation alignment of METHOD.md section 3: translation + uniform scale, no rotation.
+    """Evaluation alignment of docs/method.md section 3: translation + uniform scale, no rotation.
 
     First match centroids and RMS radii (``s0 = rms(gt - c_gt) / rms(pred - c_pred)``,
     ``t0 = c_gt - s0 * c_pred``), then refine by translation + scale ICP of ``pred`` onto ``gt``.

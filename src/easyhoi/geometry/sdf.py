@@ -1,6 +1,6 @@
 """Signed distance fields of watertight meshes: exact values and a differentiable grid.
 
-Sign convention: negative inside the object, positive outside (METHOD.md section 2.2).
+Sign convention: negative inside the object, positive outside (docs/method.md section 2.2).
 
 The grid stores the exact signed distance at its nodes: node ``(i, j, k)`` sits at exactly
 ``bounds_min + (i, j, k) * voxel_size`` (``values[i, j, k]``, i along x). :func:`query`

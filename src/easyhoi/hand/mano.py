@@ -146,7 +146,7 @@ def left_to_right_mano(data: dict[str, np.ndarray], fix_shapedirs: bool = True) 
     correctives and pose PCA conjugated by ``M = diag(-1, 1, 1)``. A pose feature entry
     ``(R - I)[a, b]`` of the left hand equals ``m_a m_b`` times the right one, and an offset's
     coordinate ``c`` changes sign with ``m_c``. The released MANO_LEFT ``shapedirs`` carry the
-    wrong sign on x (METHOD.md section 5): the corrected left directions have x negated and
+    wrong sign on x (docs/method.md section 5): the corrected left directions have x negated and
     mirroring negates x again, so with ``fix_shapedirs`` (the released files) they are kept
     as stored; pass ``False`` for a file whose shapedirs were already corrected.
     """

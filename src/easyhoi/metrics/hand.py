@@ -1,4 +1,4 @@
-"""Hand pose metrics: MPJPE and MPVPE in centimetres (METHOD.md section 3).
+"""Hand pose metrics: MPJPE and MPVPE in centimetres (docs/method.md section 3).
 
 Inputs are in METRES; errors are mean Euclidean distances per point, in cm. Alignments:
 

@@ -3,7 +3,7 @@
 Inputs are meshes in METRES (``trimesh.Trimesh`` or ``(vertices, faces)``); outputs are in
 centimetres (cm, cm^3) as the papers report them.
 
-Intersection volume, two variants (METHOD.md section 3):
+Intersection volume, two variants (docs/method.md section 3):
 
 - ``"obman"`` (the published convention of ObMan, GraspTTA, EasyHOI): voxelize the OBJECT with
   trimesh's surface voxelization (pitch 0.5 cm), count the voxel centres inside the closed hand

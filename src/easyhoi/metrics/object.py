@@ -1,4 +1,4 @@
-"""Object reconstruction metrics: Chamfer distance and F-score (METHOD.md section 3).
+"""Object reconstruction metrics: Chamfer distance and F-score (docs/method.md section 3).
 
 Convention ("moho", the one MOHO and EasyHOI report): sample 30,000 points on each surface,
 convert metres to centimetres, take squared nearest-neighbour distances,

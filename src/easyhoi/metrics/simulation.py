@@ -1,4 +1,4 @@
-"""Simulation displacement (S.D.): does the grasp hold the object? (METHOD.md section 3)
+"""Simulation displacement (S.D.): does the grasp hold the object? (docs/method.md section 3)
 
 The ObMan / GraspTTA / EasyHOI protocol in PyBullet: the hand is a static concave triangle mesh,
 the object a dynamic body of mass 1 kg made of the convex hulls of its V-HACD decomposition, with
@@ -36,7 +36,7 @@ _MEMORY_CACHE: dict[str, tuple[Path, int]] = {}
 
 @dataclass(frozen=True)
 class VHACDParams:
-    """V-HACD settings of the published protocol (METHOD.md).
+    """V-HACD settings of the published protocol (docs/method.md).
 
     PyBullet bundles V-HACD 2.2, which has no "maximum number of hulls" setting: it bounds the
     count by its clipping depth (each stage at most doubles the parts), so ``max_hulls`` is

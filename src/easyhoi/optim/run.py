@@ -1,4 +1,4 @@
-"""The three-stage prior-guided optimizer (METHOD.md section 2.2): public entry point.
+"""The three-stage prior-guided optimizer (docs/method.md section 2.2): public entry point.
 
 :func:`optimize` turns an :class:`~easyhoi.hoi.HOIInput` into an :class:`~easyhoi.hoi.HOIResult`:
 
