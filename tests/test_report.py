@@ -16,8 +16,8 @@ import easyhoi.viz.report as report_mod
 import easyhoi.viz.views as views_mod
 from easyhoi.errors import InvalidInputError
 from easyhoi.result_folder import RESULT_FILES, write_result_folder
+from easyhoi.testing.hoi_scene import METRIC_SCALE, H, W, hand_model, make_input, make_result
 from easyhoi.viz.report import fmt, report_html
-from tests.hoi_scene import METRIC_SCALE, H, W, hand_model, make_input, make_result
 
 
 @pytest.fixture(scope="module")

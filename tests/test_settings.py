@@ -16,7 +16,7 @@ from easyhoi.cli import build_parser, main, run_from_args
 from easyhoi.config import MAX_SEED, get_preset, with_overrides
 from easyhoi.errors import InvalidInputError
 from easyhoi.settings import RunSettings, resolve_run
-from tests.mano_synth import write_synthetic_mano
+from easyhoi.testing.mano_synth import write_synthetic_mano
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "easyhoi"
 SHORT = ["--set", "optim.camera.max_iters=10", "--set", "optim.contact.max_iters=10",

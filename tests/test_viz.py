@@ -13,6 +13,7 @@ from PIL import Image
 import easyhoi.viz.views as views_mod
 from easyhoi.errors import InvalidInputError
 from easyhoi.structures import Camera
+from easyhoi.testing.hoi_scene import H, W, hand_model, make_input, make_result
 from easyhoi.viz import (
     mask_iou,
     mask_ious,
@@ -26,7 +27,6 @@ from easyhoi.viz import (
 )
 from easyhoi.viz.plots import losses_png, stage_loss_series
 from easyhoi.viz.shade import SceneMesh, corner_normals
-from tests.hoi_scene import H, W, hand_model, make_input, make_result
 
 
 @pytest.fixture(scope="module")
