@@ -642,12 +642,10 @@ def summarize_photo(task: Task) -> dict:
 class ReconstructWorker:
     """The batch worker of ``easyhoi batch``: :func:`easyhoi.pipeline.reconstruct_photo`.
 
-    Parameters
-    ----------
-    settings : RunSettings, EasyHOIConfig or None
-        The run's settings (:mod:`easyhoi.settings`), or a configuration they are resolved from
-        once per process (None: the "fast" preset). Picklable, so the worker can be sent to
-        processes and Ray tasks. Each photo runs with its task's seed.
+    Args:
+        settings: The run's :class:`~easyhoi.settings.RunSettings`, or a configuration they are
+            resolved from once per process (None: the "fast" preset). Picklable, so the worker
+            can be sent to processes and Ray tasks. Each photo runs with its task's seed.
     """
 
     def __init__(self, settings=None):

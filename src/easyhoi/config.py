@@ -567,18 +567,14 @@ def _walk(cfg, parts: list[str], path: str):
 def with_overrides(cfg, overrides: dict[str, Any]):
     """A copy of ``cfg`` with dotted-path fields replaced, type-checked.
 
-    Parameters
-    ----------
-    cfg : a config dataclass (usually :class:`EasyHOIConfig`)
-    overrides : dict
-        ``{"optim.refine.max_iters": 50, "optim.camera.use_sinkhorn": False, ...}``. ints are
-        accepted for float fields, lists for tuple fields; the value checks of each dataclass
-        run again on the new values.
+    Args:
+        cfg: a config dataclass (usually :class:`EasyHOIConfig`)
+        overrides (dict): ``{"optim.refine.max_iters": 50, "optim.camera.use_sinkhorn": False,
+            ...}``. ints are accepted for float fields, lists for tuple fields; the value checks of
+            each dataclass run again on the new values.
 
-    Raises
-    ------
-    InvalidInputError
-        Unknown path, wrong type, or a value outside its allowed range.
+    Raises:
+        InvalidInputError: Unknown path, wrong type, or a value outside its allowed range.
     """
     for path, value in overrides.items():
         parts = path.split(".")

@@ -26,20 +26,14 @@ _CHUNK = 1 << 20
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically; the parent folder must exist.
 
-    Parameters
-    ----------
-    path : path-like
-        Destination file; replaced if it exists.
-    data : bytes
-        The complete content.
+    Args:
+        path (path-like): Destination file; replaced if it exists.
+        data (bytes): The complete content.
 
-    Returns
-    -------
-    Path
-        ``path`` as a :class:`~pathlib.Path`.
-
-    On any exception (full disk, interruption) the temporary file is removed, an existing
-    ``path`` is left untouched, and the exception propagates.
+    Returns:
+        Path: ``path`` as a :class:`~pathlib.Path`.
+        On any exception (full disk, interruption) the temporary file is removed, an existing
+        ``path`` is left untouched, and the exception propagates.
     """
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)

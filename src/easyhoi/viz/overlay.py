@@ -55,23 +55,16 @@ def stage_meshes(
 ) -> tuple[list[SceneMesh], Camera, str]:
     """What one stage snapshot looked like.
 
-    Parameters
-    ----------
-    result : HOIResult
-    stage : StageResult
-        One of ``result.stages``.
-    hand_model : HandModel or None
-        Poses the snapshot's hand parameters; without it only the final stage can show the hand
-        (from ``result.hand_vertices``).
+    Args:
+        result: HOIResult
+        stage (StageResult): One of ``result.stages``.
+        hand_model (HandModel or None): Poses the snapshot's hand parameters; without it only the
+            final stage can show the hand (from ``result.hand_vertices``).
 
-    Returns
-    -------
-    meshes : list of SceneMesh
-        The hand (when known) and the object, in object units.
-    camera : Camera
-        The stage's camera (the final camera when the snapshot has none).
-    note : str
-        Empty, or why the hand is missing.
+    Returns:
+        meshes (list of SceneMesh): The hand (when known) and the object, in object units.
+        camera (Camera): The stage's camera (the final camera when the snapshot has none).
+        note (str): Empty, or why the hand is missing.
     """
     scale = stage.metric_scale if stage.metric_scale else result.metric_scale
     camera = stage.camera if stage.camera is not None else result.camera
@@ -116,20 +109,15 @@ def render_overlay(
 ) -> Render:
     """Hand and object shaded over the photo.
 
-    Parameters
-    ----------
-    result : HOIResult
-    image : (H, W, 3) uint8
-        The photo.
-    alpha : float
-        Mesh opacity.
-    meshes, camera : optional
-        Draw these instead of the final reconstruction (used for stage snapshots).
+    Args:
+        result: HOIResult
+        image ((H, W, 3) uint8): The photo.
+        alpha (float): Mesh opacity.
+        meshes, camera (optional): Draw these instead of the final reconstruction (used for stage
+            snapshots).
 
-    Returns
-    -------
-    Render
-        Same size as the photo; pixels no mesh covers are the photo's, unchanged.
+    Returns:
+        Render: Same size as the photo; pixels no mesh covers are the photo's, unchanged.
     """
     result = _check_result(result)
     image = _check_image(image)
