@@ -17,7 +17,7 @@ from easyhoi.optim.contact import (
     register_contacts,
 )
 from easyhoi.optim.scene import Scene
-from tests.optim_scenes import make_scene
+from easyhoi.testing.optim_scenes import make_scene
 
 SIZE = 96
 NOISE = dict(rot_noise=0.05, trans_noise=0.02, depth_noise=0.05, pose_noise=0.03)

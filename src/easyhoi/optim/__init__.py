@@ -1,4 +1,4 @@
-"""Prior-guided optimization (METHOD.md section 2.2): loss terms and the three stages."""
+"""Prior-guided optimization (docs/method.md section 2.2): loss terms and the three stages."""
 
 from easyhoi.optim.losses import (
     contact_loss,
