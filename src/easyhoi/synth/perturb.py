@@ -337,7 +337,7 @@ def make_hoi_input(scene, perturbation="none", seed: int = 0, rotate: bool | Non
 
     Parameters
     ----------
-    scene : Scene
+    scene : SynthScene
     perturbation : str or Perturbation
     seed : int
         Seeds every perturbation (independent streams for hand, object and each mask).
