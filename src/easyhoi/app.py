@@ -10,11 +10,11 @@ writes its result folder there, a zip of that folder is made for download); only
 (checked by content with :func:`easyhoi.io.image.load_image`, not by the file extension).
 Failures reach the page as one readable sentence; tracebacks go to the server log only.
 
-The reconstruction is injectable: ``reconstruct_fn(image_path, out_dir, config, *, seed,
+The reconstruction is injectable: ``reconstruct_fn(image_path, folder, config, *, seed,
 progress, say)`` with the signature of :func:`easyhoi.pipeline.reconstruct_photo` (the
 default), returning an object whose ``files`` lists what it wrote; the page needs
 ``overlay.png``, ``scene.glb`` and ``result.json`` among them (see
-:mod:`easyhoi.io.result_folder`).
+:mod:`easyhoi.result_folder`).
 """
 
 from __future__ import annotations
