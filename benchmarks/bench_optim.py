@@ -89,7 +89,7 @@ def _quality(scene, model, params, metric_scale: float, camera, render_size: int
 
     from easyhoi.metrics import simulation_displacement
     from easyhoi.optim.run import plausibility
-    from easyhoi.optim.scene import Scene
+    from easyhoi.optim.state import Scene
 
     sc = Scene.from_input(scene.inp, model, torch.float64)
     params = params.detach().to(dtype=torch.float64)

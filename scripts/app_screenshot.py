@@ -54,8 +54,8 @@ def standin_reconstruct(image_path, out_dir, config=None, *, seed=0, progress=No
                         provided=None):  # fmt: skip
     """Write a small but real result folder for ``image_path`` (no optimization).
 
-    The result folder ``out_dir`` gets ``overlay.png`` (the built-in hand in a grasp pose drawn
-    over the photo), ``scene.glb`` (that hand and a box, metres), ``result.json`` (plausibility:
+    ``out_dir/<stem>/`` gets ``overlay.png`` (the built-in hand in a grasp pose drawn over the
+    photo), ``scene.glb`` (that hand and a box, metres), ``result.json`` (plausibility:
     :data:`STANDIN_PLAUSIBILITY` plus ``hand_mask_iou`` = the hand's share of the overlay's
     pixels, and a camera facing the hand) and ``report.html``. Calls ``say`` once and
     ``progress`` for three stages.
@@ -99,7 +99,7 @@ def standin_reconstruct(image_path, out_dir, config=None, *, seed=0, progress=No
     covered = float((np.asarray(layer)[..., 3] > 0).mean())
     overlay = Image.alpha_composite(img, layer).convert("RGB")
 
-    folder = Path(out_dir)
+    folder = Path(out_dir) / Path(image_path).stem
     folder.mkdir(parents=True, exist_ok=True)
     overlay.save(folder / "overlay.png")
     scene = trimesh.Scene({"hand": hand_mesh, "object": box})

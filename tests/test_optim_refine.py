@@ -10,7 +10,7 @@ import torch
 from easyhoi.config import get_preset
 from easyhoi.optim.refine import fit_refine, refine_terms
 from easyhoi.optim.run import plausibility
-from easyhoi.optim.scene import Scene
+from easyhoi.optim.state import Scene
 from easyhoi.structures import HandParams
 from easyhoi.testing.optim_scenes import make_scene
 

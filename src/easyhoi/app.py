@@ -308,7 +308,7 @@ def handle_request(
     local = run / "input" / f"{stem}{suffix or src.suffix.lower()[:6]}"
     local.parent.mkdir()
     shutil.copyfile(src, local)
-    out_dir = run / "result" / stem
+    out_dir = run / stem
 
     def on_progress(stage: str, it: int, total: int, losses: dict) -> None:
         if progress is not None:

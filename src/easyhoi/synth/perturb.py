@@ -322,7 +322,7 @@ def make_hoi_input(scene, perturbation="none", seed: int = 0, rotate: bool | Non
     """Build the optimizer's :class:`~easyhoi.hoi.HOIInput` from a scene.
 
     Args:
-        scene: Scene
+        scene: SynthScene
         perturbation: str or Perturbation
         seed (int): Seeds every perturbation (independent streams for hand, object and each mask).
         rotate (bool, optional): Override the level's random canonical rotation.
