@@ -103,17 +103,12 @@ def _fmt(v) -> str:
 def cmd_reconstruct(args) -> int:
     """Reconstruct hand + object from one photo into ``--out/<stem>``; several photos run as a
     batch (one folder each, a manifest; see :mod:`easyhoi.batch`)."""
-    from easyhoi.io.image import load_image
     from easyhoi.pipeline import reconstruct_photo
-    from easyhoi.settings import resolve_run
 
     _check_out_dir(Path(args.out))
-    cfg = _config_from_args(args)  # bad options and seeds fail first
-    if len(args.images) == 1:
-        load_image(args.images[0])  # then a bad photo, before the heavy imports
-    # the hand model is loaded once (a missing or unsafe MANO file fails now, not after
-    # perception) and serves every photo
-    run = resolve_run(cfg)
+    # the config, the seed and the hand model (a missing or unsafe MANO file fails now, not
+    # after perception) are resolved once, before any photo is read
+    run = run_from_args(args)
     provided = _provided_from_args(args)
     if len(args.images) > 1:
         if provided is not None:
