@@ -116,6 +116,8 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
         "reasons": [] if conf is None else list(conf.reasons),
         "seconds": secs,
         "notes": notes,
+        "score": None if seg is None else seg.meta.get("score"),
+        "margin": None if seg is None else seg.meta.get("margin"),
     }
     row["wrong"] = bool(seg is not None and present and row["iou"] < 0.5)
     row["missed"] = bool(present and seg is None)

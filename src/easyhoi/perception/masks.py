@@ -287,6 +287,10 @@ class ClassicalHOISegmenter:
                 "n_segments": props.n_base,
                 "n_hypotheses": len(props.regions),
                 "prompted": prompted,
+                "score": None if best is None else round(float(hyp.scores[best]), 3),
+                "margin": None
+                if runner is None or best is None
+                else round(float(hyp.scores[best] - hyp.scores[runner]), 3),
                 "hypotheses": top,
             },
         )

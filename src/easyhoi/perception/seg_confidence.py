@@ -22,9 +22,11 @@ from easyhoi.perception.confidence import MaskConfidence
 from easyhoi.perception.held_object import AREA_RANGE, CUES, Hypotheses
 from easyhoi.perception.skin import draw_skeleton, palm_length
 
-#: Logistic calibration of the automatic object score:
-#: sigmoid(A * (score - S0) + B * (margin - M0)).
-CALIBRATION = {"A": 0.9, "S0": 2.0, "B": 0.9, "M0": 1.0}
+#: Logistic calibration of the automatic object score: sigmoid(A * (score - S0) + B * (margin -
+#: M0)), the margin capped at 3. Set on the tuning half of the development photos so that the
+#: wrong choices there score low: a choice is trusted only when the region has most of the
+#: held-object cues (score >= S0) and clearly beats every different region (margin >= M0).
+CALIBRATION = {"A": 1.0, "S0": 5.0, "B": 1.5, "M0": 2.5}
 
 
 def _sigmoid(z: float) -> float:
