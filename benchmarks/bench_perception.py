@@ -7,11 +7,14 @@ as :func:`easyhoi.perception.chain.segment_hands` does in the product. Reported 
   matches best;
 * ``IoU``: the chosen object mask against the reference held object(s) (0 when none is output);
 * ``wrong``: an object is output, one is present, and IoU < 0.5;
-* ``missed``: a visibly held object is present and none is output;
+* ``missed``: an object is visibly held and none is output;
 * ``low``: the object confidence is low (< 0.5; the product warns);
 * ``s``: seconds for detection + segmentation;
 * ``IoU 1pt``: the same with one object point, the reference mask's deepest interior point
-  (maximum of its distance transform), as a user's single click.
+  (maximum of its distance transform, ``tests/perception_refs.object_point``), as a user's
+  single click.
+
+The reference object is every object a hand holds (``held_by``), visibly or not.
 
 The photos are split in two fixed halves by a checksum of their name (CRC-32 even: ``tune``,
 odd: ``check``); the summary is given for each half and for all. Reference masks: the JSON
@@ -46,24 +49,21 @@ DATA = ROOT.parent / "shared" / "data"
 
 
 def reference(path: Path) -> dict:
-    """Reference of one photo: image path, hand masks (one per hand) and the held-object mask
-    (all visibly held objects together; None: no object)."""
-    ref = json.loads(path.read_text())
-    w, h = int(ref["width"]), int(ref["height"])
+    """Reference of one photo (``tests/perception_refs.py`` format): image path, one mask per
+    hand, the held-object mask (None: nothing held), whether it is visibly held, and the
+    one-click point (the held-object mask's deepest interior pixel)."""
+    sys.path.insert(0, str(ROOT))
+    from tests import perception_refs as pr
 
-    def raster(polys) -> np.ndarray:
-        m = np.zeros((h, w), np.uint8)
-        for p in polys:
-            if len(p) >= 3:
-                cv2.fillPoly(m, [np.round(np.asarray(p, float)).astype(np.int32)], 1)
-        return m.astype(bool)
-
-    hands = [raster(hd.get("polygons", [])) for hd in ref.get("hands", [])]
-    held = [o for o in ref.get("objects", []) if o.get("visibly_held", True)]
-    obj = raster([p for o in held for p in o.get("polygons", [])]) if held else None
-    if obj is not None and not obj.any():
-        obj = None
-    return {"image": ref["image"], "hand": hands, "object": obj}
+    ref = pr.load_ref(path)
+    obj = pr.held_object_mask(ref)
+    return {
+        "image": ref.image,
+        "hand": [pr.rasterize(h.polygons, ref.height, ref.width) for h in ref.hands],
+        "object": obj if obj.any() else None,
+        "visibly_held": any(o.held_by and o.visibly_held for o in ref.objects),
+        "point": pr.object_point(ref),
+    }
 
 
 def fit_to(ref: dict, shape: tuple[int, int]) -> dict:
@@ -75,14 +75,16 @@ def fit_to(ref: dict, shape: tuple[int, int]) -> dict:
             return m
         return cv2.resize(m.astype(np.uint8), shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
 
-    return {**ref, "hand": [fit(h) for h in ref["hand"]], "object": fit(ref["object"])}
-
-
-def deepest_point(mask: np.ndarray) -> tuple[float, float]:
-    """(x, y) of the mask pixel farthest from its outline."""
-    d = cv2.distanceTransform(np.pad(mask, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
-    y, x = np.unravel_index(int(np.argmax(d)), d.shape)
-    return float(x), float(y)
+    h0, w0 = ref["hand"][0].shape if ref["hand"] else shape
+    pt = ref["point"]
+    if pt is not None:
+        pt = (pt[0] * shape[1] / w0, pt[1] * shape[0] / h0)
+    return {
+        **ref,
+        "hand": [fit(h) for h in ref["hand"]],
+        "object": fit(ref["object"]),
+        "point": pt,
+    }
 
 
 def iou(a: np.ndarray | None, b: np.ndarray | None) -> float:
@@ -120,10 +122,10 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
         "margin": None if seg is None else seg.meta.get("margin"),
     }
     row["wrong"] = bool(seg is not None and present and row["iou"] < 0.5)
-    row["missed"] = bool(present and seg is None)
+    row["missed"] = bool(present and ref["visibly_held"] and seg is None)
     row["false_object"] = bool(seg is not None and not present)
     if with_point and present and hands:
-        p = Prompts(object_points=(deepest_point(ref["object"]),))
+        p = Prompts(object_points=(tuple(float(v) for v in ref["point"]),))
         t1 = time.perf_counter()
         _, sp, _ = segment_hands(rgb, hands, segmenter, prompts=p)
         row["seconds_point"] = time.perf_counter() - t1
