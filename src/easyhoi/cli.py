@@ -511,7 +511,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip photos the manifest records as done (folder present)")  # fmt: skip
     p.add_argument("--recursive", action="store_true", help="include subfolders")
     p.add_argument("--wait", action="store_true",
-                   help="when another run uses --out, wait for it instead of exiting 11")  # fmt: skip
+                   help="if another run uses --out, wait for it (default: exit 11)")  # fmt: skip
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
     p.add_argument("--seed", type=int, default=None, help=_SEED_HELP)
     _add_model_options(p)
