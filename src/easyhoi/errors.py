@@ -161,8 +161,12 @@ class ResourceError(EasyHOIError, RuntimeError):
     exit_code = ExitCode.RESOURCE
 
 
-class InputTooLargeError(ResourceError):
-    """An input (photo pixels, file bytes, mesh faces) exceeds its documented limit."""
+class InputTooLargeError(ResourceError, InvalidInputError):
+    """An input (photo pixels, file bytes, mesh faces) exceeds its documented limit.
+
+    Exit code ``RESOURCE`` (the machine could not afford it); also an
+    :class:`InvalidInputError`, so every handler of bad input reports it as one.
+    """
 
 
 class OutputBusyError(EasyHOIError):
