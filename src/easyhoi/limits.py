@@ -129,8 +129,12 @@ def check_output_folder(out: str | os.PathLike, what: str = "--out") -> Path:
     except OSError as exc:
         if exc.errno in (errno.ENOSPC, errno.EDQUOT):
             raise ResourceError(f"cannot write to {what} {out}: disk full ({p})") from exc
+        if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+            why = "read-only file system" if exc.errno == errno.EROFS else "no write permission"
+            raise InvalidInputError(f"cannot write to {what} {out}: {why} on {p}") from exc
         raise InvalidInputError(
-            f"cannot write to {what} {out}: {os.strerror(exc.errno or 0) or exc} ({p})"
+            f"cannot write to {what} {out}: cannot create files in {p} "
+            f"({os.strerror(exc.errno) if exc.errno else exc})"
         ) from exc
     shutil.rmtree(probe, ignore_errors=True)
     try:
