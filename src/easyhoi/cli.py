@@ -2,8 +2,9 @@
 
 Exit codes: 0 success; 1 other easyhoi error; 2 invalid input (bad file, wrong size, bad
 option); 3 missing optional dependency; 4 backend failure; 5 no hand found; 6 no held object;
-7 optimization failure; 8 some photos of a batch failed; 70 internal error (a bug: please
-report it with ``--verbose`` output); 130 interrupted.
+7 optimization failure; 8 some photos of a batch failed; 9 low-confidence masks with
+``--strict`` (nothing written); 70 internal error (a bug: please report it with ``--verbose``
+output); 130 interrupted.
 """
 
 from __future__ import annotations
@@ -112,11 +113,17 @@ def cmd_reconstruct(args) -> int:
     """Reconstruct hand + object from one or more photos."""
     from easyhoi.pipeline import reconstruct_photo
 
+    prompts = _prompts_from_args(args)
     cfg = _config_from_args(args)
     _check_out_dir(Path(args.out))
     provided = _provided_from_args(args)
     if len(args.images) > 1 and provided is not None:
         raise InvalidInputError("--hand-mask/--object-mask/... imports need exactly one photo")
+    if len(args.images) > 1 and prompts is not None:
+        raise InvalidInputError(
+            "--object-point/--object-box/--hand-point need exactly one photo "
+            "(for many photos: easyhoi batch --prompts FILE)"
+        )
     if cfg.hand_model == "mano":  # a missing or unsafe MANO file fails now, not after perception
         from easyhoi.hand import load_hand_model
 
@@ -128,7 +135,7 @@ def cmd_reconstruct(args) -> int:
             with _Progress(args, Path(image).name) as bar:
                 rec = reconstruct_photo(
                     image, out, cfg, seed=args.seed, provided=provided,
-                    progress=bar.update, say=bar.step,
+                    progress=bar.update, say=bar.step, prompts=prompts, strict=args.strict,
                 )  # fmt: skip
         except EasyHOIError as exc:
             if len(args.images) == 1:
@@ -137,6 +144,7 @@ def cmd_reconstruct(args) -> int:
             _err(f"{image}: {type(exc).__name__}: {exc}")
             continue
         where = rec.files[0].parent if rec.files else out
+        _tell_perception(args, image, rec.perception, prompts)
         _say(args, f"{image}: done in {rec.seconds:.1f} s -> {where} (open report.html)")
         for f in rec.files:
             logger.info("wrote %s", f)
@@ -301,6 +309,31 @@ def _config_from_args(args):
     return cfg
 
 
+def _prompts_from_args(args):
+    """The --object-point/--object-box/--hand-point prompts (pixels), or None when none given."""
+    from easyhoi.perception.prompts import Prompts, parse_numbers
+
+    points = tuple(parse_numbers(t, 2, "--object-point") for t in args.object_point or ())
+    box = None if args.object_box is None else parse_numbers(args.object_box, 4, "--object-box")
+    hand = None if args.hand_point is None else parse_numbers(args.hand_point, 2, "--hand-point")
+    prompts = Prompts(object_points=points, object_box=box, hand_point=hand)
+    if box is not None and not (box[0] < box[2] and box[1] < box[3]):
+        raise InvalidInputError(f"--object-box {args.object_box} must have x0 < x1 and y0 < y1")
+    return None if prompts.empty else prompts
+
+
+def _tell_perception(args, image, perception: dict, prompts=None) -> None:
+    """Say which hand the result uses when it is not the first, and warn about weak masks."""
+    from easyhoi.perception.feedback import hand_choice_note, low_confidence_lines
+
+    note = hand_choice_note(perception)
+    if note:
+        _err(f"{image}: note: {note}")
+    prompted = prompts is not None and prompts.has_object_prompt
+    for line in low_confidence_lines(perception, "cli", prompted):
+        _err(f"{image}: warning: {line}")
+
+
 def _check_out_dir(out: Path) -> None:
     """Refuse an output folder that can never be written before any work is done."""
     import os
@@ -460,6 +493,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--amodal-mask", help="complete (amodal) object mask PNG")
     p.add_argument("--object-mesh", help="object mesh OBJ/GLB/PLY (e.g. InstantMesh output)")
     p.add_argument("--hand-params", help="HaMeR hand file (.npz/.json/.pkl)")
+    p.add_argument("--object-point", action="append", metavar="X,Y",
+                   help="a pixel inside the held object (x right, y down; repeatable)")  # fmt: skip
+    p.add_argument("--object-box", metavar="X0,Y0,X1,Y1", help="a box around the held object")
+    p.add_argument("--hand-point", metavar="X,Y", help="a pixel on the hand holding the object")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 9, writing nothing, when a mask has low confidence")  # fmt: skip
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
     _add_common(p)

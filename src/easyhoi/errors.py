@@ -56,6 +56,12 @@ class OptimizationError(EasyHOIError, RuntimeError):
     exit_code = 7
 
 
+class LowConfidenceError(EasyHOIError):
+    """Perception is unsure of a mask and the caller asked for certainty (``--strict``)."""
+
+    exit_code = 9
+
+
 def require(module: str, extra: str | None = None, purpose: str = ""):
     """Import an optional module or raise :class:`MissingDependencyError` naming the fix."""
     import importlib

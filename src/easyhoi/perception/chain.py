@@ -13,6 +13,8 @@ Steps (each a pluggable backend, chosen by name in :class:`~easyhoi.config.Perce
 
 from __future__ import annotations
 
+import functools
+import inspect
 import logging
 import time
 from collections.abc import Callable
@@ -25,6 +27,7 @@ from easyhoi.errors import InvalidInputError, NoHandError, NoObjectError
 from easyhoi.hand import load_hand_model
 from easyhoi.hoi import HOIInput
 from easyhoi.perception.base import HandDetection, Segmentation, create
+from easyhoi.perception.prompts import Prompts
 
 logger = logging.getLogger(__name__)
 
@@ -40,6 +43,10 @@ class PerceptionReport:
     notes: list = field(default_factory=list)
     #: mask name ("hand", "object", "amodal") -> MaskConfidence (perception.confidence)
     confidence: dict = field(default_factory=dict)
+    #: index, in detection order, of the hand the result uses (None before one is chosen)
+    hand_index: int | None = None
+    #: how that hand was chosen: "first holding an object" or "hand point"
+    hand_choice: str | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -49,6 +56,8 @@ class PerceptionReport:
             "timings": dict(self.timings),
             "notes": list(self.notes),
             "confidence": {k: v.to_dict() for k, v in self.confidence.items()},
+            "hand_index": self.hand_index,
+            "hand_choice": self.hand_choice,
         }
 
     @property
@@ -80,10 +89,14 @@ def perceive(
     progress: Callable[[str], None] | None = None,
     seed: int = 0,
     provided: Provided | None = None,
+    prompts: Prompts | None = None,
 ) -> tuple[HOIInput, PerceptionReport]:
     """Run the perception chain on an (H, W, 3) uint8 RGB photo.
 
     Steps whose results are in ``provided`` are skipped (their inputs are not needed).
+    ``prompts`` (pixels of ``image``) steer the segmentation: a hand point picks the hand
+    nearest to it, object points and box reach the segmenter when its ``segment`` takes a
+    ``prompts`` argument (:class:`InvalidInputError` when it does not).
 
     Raises:
         NoHandError: no hand in the photo.
@@ -107,6 +120,7 @@ def perceive(
         return out
 
     pv = provided or Provided()
+    prompts = None if prompts is None or prompts.empty else prompts.check(W, H)
     for name in ("hand_mask", "object_mask", "amodal_mask"):
         m = getattr(pv, name)
         if m is not None and np.shape(m) != (H, W):
@@ -123,21 +137,34 @@ def perceive(
     if not hands:
         raise NoHandError("no hand found in the photo")
     segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter)
+    segment = None if masks_given else _prompted(segmenter, pc.segmenter, prompts)
+    order = list(range(len(hands)))
+    if prompts is not None and prompts.hand_point is not None and not masks_given:
+        order = [nearest_hand(hands, prompts.hand_point)]
+        report.hand_choice = "hand point"
     chosen = seg = None
-    for i, hand in enumerate(hands):
+    for i in order:
+        hand = hands[i]
         if masks_given:
             s = Segmentation(pv.hand_mask, pv.object_mask, bool(pv.object_mask.any()))
         else:
-            s = timed(f"segmentation (hand {i})", segmenter.segment, image, hand)
+            s = timed(f"segmentation (hand {i})", segment, image, hand)
             if pv.hand_mask is not None or pv.object_mask is not None:
                 hm = s.hand_mask if pv.hand_mask is None else pv.hand_mask
                 om = s.object_mask if pv.object_mask is None else pv.object_mask
                 s = Segmentation(hm, om, bool(om.any()), s.candidates, s.meta)
         if s.has_object:
             chosen, seg = hand, s
+            report.hand_index = i
+            report.hand_choice = report.hand_choice or "first holding an object"
             break
         report.notes.append(f"hand {i} ({hand.side}) holds no object")
     if chosen is None:
+        if report.hand_choice == "hand point":
+            i = order[0]
+            raise NoObjectError(
+                f"the hand nearest the hand point (hand {i}, {hands[i].side}) holds no object"
+            )
         raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
     report.side, report.has_object = chosen.side, True
 
@@ -192,6 +219,28 @@ def perceive(
         },
     )
     return inp, report
+
+
+def nearest_hand(hands: list[HandDetection], point) -> int:
+    """Index of the hand whose keypoints come nearest to the pixel ``point`` (x, y)."""
+    p = np.asarray(point, float).reshape(1, 2)
+    dists = []
+    for hand in hands:
+        k = np.asarray(hand.keypoints2d, float).reshape(-1, 2)
+        dists.append(np.linalg.norm(k - p, axis=1).min() if len(k) else np.inf)
+    return int(np.argmin(dists))
+
+
+def _prompted(segmenter, name: str, prompts: Prompts | None):
+    """``segment(image, hand)`` of ``segmenter``, handing it the object prompts."""
+    if prompts is None or not prompts.has_object_prompt:
+        return segmenter.segment
+    if "prompts" not in inspect.signature(segmenter.segment).parameters:
+        raise InvalidInputError(
+            f"the segmenter {name!r} takes no object prompts; choose one that does "
+            "(see `easyhoi doctor`) or leave out --object-point/--object-box"
+        )
+    return functools.partial(segmenter.segment, prompts=prompts)
 
 
 #: Backends that load a large model from a local folder, and the config field naming it.
