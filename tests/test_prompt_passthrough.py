@@ -1,0 +1,96 @@
+"""Prompts through the perception chain: the hand point picks the hand, object prompts reach a
+segmenter that takes them, and a segmenter that does not is refused by name."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from easyhoi.config import EasyHOIConfig
+from easyhoi.errors import InvalidInputError, NoObjectError
+from easyhoi.perception import base
+from easyhoi.perception.base import HandDetection, Segmentation
+from easyhoi.perception.chain import nearest_hand, perceive
+from easyhoi.perception.prompts import Prompts
+
+IMAGE = np.zeros((100, 200, 3), np.uint8)
+
+
+def hand_at(u: float, v: float, side: str) -> HandDetection:
+    """21 keypoints on a 20 px circle around (u, v)."""
+    a = np.linspace(0, 2 * np.pi, 21)
+    k = np.stack([u + 20 * np.cos(a), v + 20 * np.sin(a)], 1)
+    return HandDetection(k, None, side, 0.9)
+
+
+class TwoHands:
+    def detect(self, image):
+        return [hand_at(40, 50, "left"), hand_at(160, 50, "right")]
+
+
+class Recording:
+    """A segmenter that records its calls and finds no object (so perceive stops there)."""
+
+    calls: list = []
+
+    def segment(self, image, hand, prompts=None):
+        Recording.calls.append((hand.side, prompts))
+        m = np.zeros(image.shape[:2], bool)
+        return Segmentation(m, m, False)
+
+
+class Unprompted:
+    def segment(self, image, hand):
+        m = np.zeros(image.shape[:2], bool)
+        return Segmentation(m, m, False)
+
+
+@pytest.fixture
+def config(monkeypatch):
+    monkeypatch.setitem(base._REGISTRY["hand"], "two-hands", TwoHands)
+    monkeypatch.setitem(base._REGISTRY["segmenter"], "recording", Recording)
+    monkeypatch.setitem(base._REGISTRY["segmenter"], "unprompted", Unprompted)
+    Recording.calls = []
+    cfg = EasyHOIConfig()
+    return replace(cfg, perception=replace(cfg.perception, hand="two-hands",
+                                           segmenter="recording"))  # fmt: skip
+
+
+def test_nearest_hand():
+    hands = TwoHands().detect(IMAGE)
+    assert nearest_hand(hands, (10, 90)) == 0
+    assert nearest_hand(hands, (125, 5)) == 1
+    assert nearest_hand(hands, (100, 50)) in (0, 1)
+
+
+def test_without_prompts_every_hand_is_tried_in_order(config):
+    with pytest.raises(NoObjectError, match="found 2 hand"):
+        perceive(IMAGE, config)
+    assert Recording.calls == [("left", None), ("right", None)]
+
+
+def test_hand_point_segments_only_the_pointed_hand(config):
+    with pytest.raises(NoObjectError, match=r"nearest the hand point \(hand 1, right\)"):
+        perceive(IMAGE, config, prompts=Prompts(hand_point=(150.0, 80.0)))
+    assert Recording.calls == [("right", None)]  # no object prompt: the segmenter gets none
+
+
+def test_object_prompts_reach_the_segmenter(config):
+    prompts = Prompts(object_points=((30.0, 40.0),), object_box=(10.0, 10.0, 60.0, 90.0))
+    with pytest.raises(NoObjectError):
+        perceive(IMAGE, config, prompts=prompts)
+    assert Recording.calls == [("left", prompts), ("right", prompts)]
+
+
+def test_prompts_outside_the_image_and_unprompted_segmenters_are_refused(config):
+    with pytest.raises(InvalidInputError, match="outside the 200x100 photo"):
+        perceive(IMAGE, config, prompts=Prompts(object_points=((250.0, 10.0),)))
+    unprompted = replace(config, perception=replace(config.perception, segmenter="unprompted"))
+    with pytest.raises(InvalidInputError, match="segmenter 'unprompted' takes no object prompts"):
+        perceive(IMAGE, unprompted, prompts=Prompts(object_points=((25.0, 10.0),)))
+    # a hand point needs nothing from the segmenter
+    with pytest.raises(NoObjectError):
+        perceive(IMAGE, unprompted, prompts=Prompts(hand_point=(25.0, 10.0)))
+    assert Recording.calls == []
