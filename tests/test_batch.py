@@ -397,19 +397,25 @@ def test_cli_batch_exit_8_when_photos_fail(photos, tmp_path, capsys):
     assert [r["status"] for r in read_manifest(out / MANIFEST_JSONL)] == ["failed", "failed"]
 
 
-def _fake_pipeline(monkeypatch):
-    """Stand-ins for the reconstruction and the result writer (fast, no optimizer needed)."""
+def _fake_pipeline(monkeypatch, perception=None, prompts_seen=None):
+    """Stand-ins for the reconstruction and the result writer (fast, no optimizer needed).
+
+    ``perception`` is the perception report every photo gets; ``prompts_seen`` (a dict) records
+    the prompts and the strict flag each photo got.
+    """
     import easyhoi.io.result_folder as rf
     import easyhoi.pipeline as pipeline
     from easyhoi.io.image import load_image
 
     seen = {}
 
-    def reconstruct_photo(image, out_dir, config, seed=0, **kw):
+    def reconstruct_photo(image, out_dir, config, seed=0, prompts=None, strict=False, **kw):
         assert out_dir is None
         load_image(image)
         seen[Path(image).name] = (seed, config.hand_model)
-        return SimpleNamespace(result="R", inp="I", seconds=0.01)
+        if prompts_seen is not None:
+            prompts_seen[Path(image).name] = (prompts, strict)
+        return SimpleNamespace(result="R", inp="I", seconds=0.01, perception=perception or {})
 
     def write_result_folder(result, inp, out_dir, image_name):
         folder = Path(out_dir) / Path(image_name).stem

@@ -647,20 +647,40 @@ class ReconstructWorker:
     config : EasyHOIConfig or None
         Configuration of every photo (None: the "fast" preset). Picklable, so the worker can be
         sent to processes and Ray tasks.
+    prompts : mapping or None
+        Batch photo name (``task.key``) -> :class:`~easyhoi.perception.prompts.Prompts`
+        (see :mod:`easyhoi.batch_prompts`).
+    strict : bool
+        A photo with a low-confidence mask fails (``LowConfidenceError``) and writes nothing.
     """
 
-    def __init__(self, config=None):
+    def __init__(self, config=None, prompts=None, strict: bool = False):
         self.config = config
+        self.prompts = dict(prompts or {})
+        self.strict = bool(strict)
 
     def __call__(self, task: Task) -> dict:
-        """Reconstruct one photo into ``task.output``; returns timing and file count."""
+        """Reconstruct one photo into ``task.output``.
+
+        Returns timing, file count, and what the user must hear about perception:
+        ``notes`` (the hand used is not the first detected) and ``warnings`` (low confidence).
+        """
         from easyhoi.io.result_folder import write_result_folder
+        from easyhoi.perception.feedback import hand_choice_note, low_confidence_lines
         from easyhoi.pipeline import reconstruct_photo
 
-        rec = reconstruct_photo(task.image, None, self.config, seed=task.seed)
+        prompts = self.prompts.get(task.key)
+        rec = reconstruct_photo(task.image, None, self.config, seed=task.seed, prompts=prompts,
+                                strict=self.strict)  # fmt: skip
         out = Path(task.output)
         out.parent.mkdir(parents=True, exist_ok=True)
         # the result folder is named after the image name's stem: give it the planned name
         name = out.name + (Path(task.image).suffix or ".img")
         files = write_result_folder(rec.result, rec.inp, out.parent, name)
-        return {"seconds": round(float(rec.seconds), 3), "files": len(files)}
+        note = hand_choice_note(rec.perception)
+        prompted = prompts is not None and prompts.has_object_prompt
+        return {
+            "seconds": round(float(rec.seconds), 3), "files": len(files),
+            "notes": [note] if note else [],
+            "warnings": low_confidence_lines(rec.perception, "batch", prompted),
+        }  # fmt: skip

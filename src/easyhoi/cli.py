@@ -155,14 +155,20 @@ def cmd_batch(args) -> int:
     """Reconstruct every photo of a folder; ``manifest.jsonl``/``.csv`` record each outcome."""
     from tqdm import tqdm
 
-    from easyhoi.batch import ReconstructWorker, discover_images, run_batch
+    from easyhoi.batch import ReconstructWorker, discover_images, plan_tasks, run_batch
 
     folder = Path(args.folder)
     images = discover_images(folder, recursive=args.recursive, exclude=[args.out])
     if not images:
         hint = "" if args.recursive else " (add --recursive to include subfolders)"
         raise InvalidInputError(f"no photos found in {folder}{hint}")
-    worker = ReconstructWorker(_config_from_args(args))
+    prompts = None
+    if args.prompts:
+        from easyhoi.batch_prompts import load_prompts_file
+
+        photos = {t.key: t.image for t in plan_tasks(images, args.out, root=folder)}
+        prompts = load_prompts_file(args.prompts, photos)
+    worker = ReconstructWorker(_config_from_args(args), prompts=prompts, strict=args.strict)
     counts = {"ok": 0, "failed": 0, "skipped": 0}
     bar = tqdm(total=len(images), unit="photo", desc="batch",
                disable=args.quiet or not sys.stderr.isatty())  # fmt: skip
@@ -173,6 +179,9 @@ def cmd_batch(args) -> int:
         bar.set_postfix(counts)
         if rec.status == "failed":
             tqdm.write(f"{rec.path}: {rec.error_type}: {rec.error}", file=sys.stderr)
+        for kind in ("notes", "warnings"):
+            for line in rec.info.get(kind) or ():
+                tqdm.write(f"{rec.path}: {kind[:-1]}: {line}", file=sys.stderr)
 
     try:
         summary = run_batch(
@@ -515,6 +524,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true",
                    help="skip photos the manifest records as done (folder present)")  # fmt: skip
     p.add_argument("--recursive", action="store_true", help="include subfolders")
+    p.add_argument("--prompts", metavar="FILE",
+                   help="per-photo prompts: JSON {photo: {object_points, object_box, "
+                   "hand_point}} or CSV photo,kind,x,y[,x1,y1]")  # fmt: skip
+    p.add_argument("--strict", action="store_true",
+                   help="a photo with a low-confidence mask fails (exit 9)")  # fmt: skip
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
     p.add_argument("--seed", type=int, default=0, help="batch seed (default 0)")
     _add_model_options(p)

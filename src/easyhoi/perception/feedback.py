@@ -21,6 +21,11 @@ _ADVICE = {
         "(or --object-box X0,Y0,X1,Y1 around it)",
         "hand": "re-run with --hand-point X,Y on the hand that holds the object",
     },
+    "batch": {
+        "object": "give the photo an object_point on the held object in the --prompts file",
+        "hand": "give the photo a hand_point on the hand that holds the object in the --prompts "
+        "file",
+    },
     "demo": {
         "object": "click on the held object in the photo and run again",
         "hand": "choose 'hand' and click on the hand that holds the object, then run again",
@@ -28,6 +33,7 @@ _ADVICE = {
 }
 _ADVICE_MORE = {
     "cli": "add --object-point X,Y on parts of the object the mask misses, or an --object-box",
+    "batch": "add object_point rows on parts of the object the mask misses, or an object_box",
     "demo": "click on the parts of the object the mask misses and run again",
 }
 
