@@ -306,7 +306,8 @@ def _config_from_args(args):
         "amodal": args.amodal, "object": args.object_backend,
     }  # fmt: skip
     for flag, role, name in (("sam_dir", "amodal", "sam"), ("depth_dir", "object", "depth"),
-                             ("diffusion_dir", "inpainter", "diffusion")):  # fmt: skip
+                             ("diffusion_dir", "inpainter", "diffusion"),
+                             ("detector_dir", "segmenter", "grounded-sam")):  # fmt: skip
         if getattr(args, flag, None):
             perception[flag] = getattr(args, flag)
             perception[role] = perception[role] or name
@@ -497,6 +498,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sam-dir", help="local SAM model folder (uses the 'sam' amodal backend)")
     p.add_argument("--depth-dir", help="local depth model folder (uses the 'depth' object backend)")
     p.add_argument("--diffusion-dir", help="local diffusers inpainting pipeline folder")
+    p.add_argument("--detector-dir", help="local OWLv2 detector folder (uses the 'grounded-sam' "
+                   "segmenter with --sam-dir)")  # fmt: skip
     p.add_argument("--hand-mask", help="visible hand mask PNG (replaces segmentation)")
     p.add_argument("--object-mask", help="visible held-object mask PNG")
     p.add_argument("--amodal-mask", help="complete (amodal) object mask PNG")

@@ -127,6 +127,8 @@ def perceive(
             h, w = np.shape(m)[:2]
             raise InvalidInputError(f"{name} is {h}x{w} but the image is {H}x{W} (height x width)")
     masks_given = pv.hand_mask is not None and pv.object_mask is not None
+    # the segmenter first: a missing model folder is reported before any work
+    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter)
     if pv.hand is not None and masks_given:  # nothing left for the detector to do
         say("hand detection (provided)")
         side = pv.hand[0].side
@@ -136,7 +138,6 @@ def perceive(
     report.hands_found = len(hands)
     if not hands:
         raise NoHandError("no hand found in the photo")
-    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter)
     segment = None if masks_given else _prompted(segmenter, pc.segmenter, prompts)
     order = list(range(len(hands)))
     if prompts is not None and prompts.hand_point is not None and not masks_given:
@@ -243,23 +244,32 @@ def _prompted(segmenter, name: str, prompts: Prompts | None):
     return functools.partial(segmenter.segment, prompts=prompts)
 
 
-#: Backends that load a large model from a local folder, and the config field naming it.
-_MODEL_DIR_FIELDS = {"sam": "sam_dir", "depth": "depth_dir", "diffusion": "diffusion_dir"}
+#: Backends that load large models from local folders, and the config fields naming them.
+_MODEL_DIR_FIELDS = {"sam": ("sam_dir",), "depth": ("depth_dir",),
+                     "diffusion": ("diffusion_dir",),
+                     "grounded-sam": ("detector_dir", "sam_dir")}  # fmt: skip
 
 
 def _backend(pc, role: str, name: str):
-    """Create a backend; adapters of large models get their local model folder from config."""
-    field_name = _MODEL_DIR_FIELDS.get(name)
-    if field_name is None:
+    """Create a backend; adapters of large models get their local model folders from config.
+
+    An adapter of one model gets it as ``model_dir``; of several, each under its field's name.
+    """
+    fields = _MODEL_DIR_FIELDS.get(name)
+    if fields is None:
         return create(role, name)
-    model_dir = getattr(pc, field_name)
-    if not model_dir:
-        flag = "--" + field_name.replace("_", "-")
-        raise InvalidInputError(
-            f"the {role} backend {name!r} needs a local model folder: pass {flag} DIR "
-            f"(perception.{field_name}); nothing is downloaded"
-        )
-    return create(role, name, model_dir=model_dir)
+    dirs = {}
+    for field_name in fields:
+        dirs[field_name] = getattr(pc, field_name)
+        if not dirs[field_name]:
+            flag = "--" + field_name.replace("_", "-")
+            raise InvalidInputError(
+                f"the {role} backend {name!r} needs a local model folder: pass {flag} DIR "
+                f"(perception.{field_name}); nothing is downloaded"
+            )
+    if len(fields) == 1:
+        return create(role, name, model_dir=dirs[fields[0]])
+    return create(role, name, **dirs)
 
 
 def _jsonable(v) -> bool:
