@@ -128,7 +128,7 @@ def build_app(
         rgb, err, state = ap.load_preview(path, max_upload_mb)
         return (
             rgb, gr.update(value=f"**{err}**" if err else "", visible=bool(err)), state,
-            ap.prompt_text(state), None,
+            ap.prompt_text(state), None, "",
         )  # fmt: skip
 
     def on_click(path, state, mode, evt: gr.SelectData):
@@ -138,9 +138,13 @@ def build_app(
         state = ap.add_click(state, mode, evt.index, (rgb.shape[1], rgb.shape[0]))
         return ap.draw_prompts(rgb, state), state, ap.prompt_text(state)
 
+    # gradio passes the click by the parameter's type, which it reads as an object: this
+    # module's annotations are strings (``from __future__ import annotations``)
+    on_click.__annotations__["evt"] = gr.SelectData
+
     def on_clear(path, state):
         rgb, _, fresh = ap.load_preview(path, max_upload_mb)
-        return rgb, fresh, ap.prompt_text(fresh), None
+        return rgb, fresh, ap.prompt_text(fresh), None, ""
 
     def on_mask(path, state, preset_name):
         from easyhoi.config import get_preset
@@ -225,12 +229,14 @@ def build_app(
                         downloads = gr.File(label="Downloads", file_count="multiple",
                                             interactive=False, elem_id="downloads")  # fmt: skip
         # change, not upload: an example photo fills the file box without an upload
-        photo.change(on_upload, photo, [preview, error, prompt_state, prompt_line, mask_view],
+        photo.change(on_upload, photo,
+                     [preview, error, prompt_state, prompt_line, mask_view, mask_line],
                      queue=False)  # fmt: skip
         preview.select(on_click, [photo, prompt_state, mode], [preview, prompt_state, prompt_line],
                        queue=False)  # fmt: skip
-        clear.click(on_clear, [photo, prompt_state], [preview, prompt_state, prompt_line,
-                                                      mask_view], queue=False)  # fmt: skip
+        clear.click(on_clear, [photo, prompt_state],
+                    [preview, prompt_state, prompt_line, mask_view, mask_line],
+                    queue=False)  # fmt: skip
         show_mask.click(on_mask, [photo, prompt_state, preset_box], [mask_view, mask_line],
                         concurrency_limit=1, api_name="mask_preview")  # fmt: skip
         run.click(
