@@ -54,8 +54,8 @@ def standin_reconstruct(image_path, out_dir, config=None, *, seed=0, progress=No
                         provided=None, prompts=None):  # fmt: skip
     """Write a small but real result folder for ``image_path`` (no optimization).
 
-    ``out_dir/<stem>/`` gets ``overlay.png`` (the built-in hand in a grasp pose drawn over the
-    photo), ``scene.glb`` (that hand and a box, metres), ``result.json`` (plausibility:
+    The result folder ``out_dir`` gets ``overlay.png`` (the built-in hand in a grasp pose drawn
+    over the photo), ``scene.glb`` (that hand and a box, metres), ``result.json`` (plausibility:
     :data:`STANDIN_PLAUSIBILITY` plus ``hand_mask_iou`` = the hand's share of the overlay's
     pixels, a camera facing the hand, and ``meta``: the ``prompts`` and a perception report
     whose object mask has low confidence unless an object point was given) and
@@ -100,7 +100,7 @@ def standin_reconstruct(image_path, out_dir, config=None, *, seed=0, progress=No
     covered = float((np.asarray(layer)[..., 3] > 0).mean())
     overlay = Image.alpha_composite(img, layer).convert("RGB")
 
-    folder = Path(out_dir) / Path(image_path).stem
+    folder = Path(out_dir)  # the result folder itself (see easyhoi.pipeline.reconstruct_photo)
     folder.mkdir(parents=True, exist_ok=True)
     overlay.save(folder / "overlay.png")
     scene = trimesh.Scene({"hand": hand_mesh, "object": box})

@@ -403,28 +403,22 @@ def _fake_pipeline(monkeypatch, perception=None, prompts_seen=None):
     ``perception`` is the perception report every photo gets; ``prompts_seen`` (a dict) records
     the prompts and the strict flag each photo got.
     """
-    import easyhoi.io.result_folder as rf
     import easyhoi.pipeline as pipeline
     from easyhoi.io.image import load_image
 
     seen = {}
 
-    def reconstruct_photo(image, out_dir, config, seed=0, prompts=None, strict=False, **kw):
-        assert out_dir is None
+    def reconstruct_photo(image, folder, settings, seed=None, prompts=None, strict=False, **kw):
         load_image(image)
-        seen[Path(image).name] = (seed, config.hand_model)
+        seen[Path(image).name] = (seed, settings.config.hand_model)
         if prompts_seen is not None:
             prompts_seen[Path(image).name] = (prompts, strict)
-        return SimpleNamespace(result="R", inp="I", seconds=0.01, perception=perception or {})
-
-    def write_result_folder(result, inp, out_dir, image_name):
-        folder = Path(out_dir) / Path(image_name).stem
-        folder.mkdir(parents=True)
-        (folder / "result.json").write_text(json.dumps({"result": result}))
-        return [folder / "result.json"]
+        Path(folder).mkdir(parents=True)
+        (Path(folder) / "result.json").write_text(json.dumps({"result": "R"}))
+        return SimpleNamespace(files=[Path(folder) / "result.json"], seconds=0.01,
+                               perception=perception or {})  # fmt: skip
 
     monkeypatch.setattr(pipeline, "reconstruct_photo", reconstruct_photo)
-    monkeypatch.setattr(rf, "write_result_folder", write_result_folder)
     return seen
 
 

@@ -16,7 +16,7 @@ import scipy.sparse as sp
 
 from easyhoi.errors import InvalidInputError, UnsafeFileError
 from easyhoi.hand.safe_pickle import load_mano_pickle
-from tests.mano_synth import dump_py2, fake_chumpy
+from easyhoi.testing.mano_synth import dump_py2, fake_chumpy
 
 
 class _Reducer:

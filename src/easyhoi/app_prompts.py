@@ -181,8 +181,9 @@ def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
     pc = config.perception
     H, W = rgb.shape[:2]
     prompts = None if prompts is None else prompts.check(W, H)
-    segmenter = _backend(pc, "segmenter", pc.segmenter)
-    hands = _backend(pc, "hand", pc.hand).detect(rgb)
+    seed = config.optim.seed
+    segmenter = _backend(pc, "segmenter", pc.segmenter, seed)
+    hands = _backend(pc, "hand", pc.hand, seed).detect(rgb)
     if not hands:
         raise NoHandError("no hand found in the photo")
     segment = _prompted(segmenter, pc.segmenter, prompts)

@@ -9,11 +9,11 @@ writes its result folder there, a zip of that folder is made for download); only
 (checked by content with :func:`easyhoi.io.image.load_image`, not by the file extension).
 Failures reach the page as one readable sentence; tracebacks go to the server log only.
 
-The reconstruction is injectable: ``reconstruct_fn(image_path, out_dir, config, *, seed,
+The reconstruction is injectable: ``reconstruct_fn(image_path, folder, config, *, seed,
 progress, say)`` with the signature of :func:`easyhoi.pipeline.reconstruct_photo` (the
 default), returning an object whose ``files`` lists what it wrote; the page needs
 ``overlay.png``, ``scene.glb`` and ``result.json`` among them (see
-:mod:`easyhoi.io.result_folder`). When the user clicked on the photo, it also gets
+:mod:`easyhoi.result_folder`). When the user clicked on the photo, it also gets
 ``prompts=`` (:class:`~easyhoi.perception.prompts.Prompts`, pixels of the upload).
 """
 
@@ -273,7 +273,7 @@ def handle_request(
     work_root : path
         Folder under which this request gets its own ``run-*`` folder.
     reconstruct_fn : callable
-        ``(image_path, out_dir, config, *, seed, progress, say) -> object with .files``;
+        ``(image_path, folder, config, *, seed, progress, say) -> object with .files``;
         default :func:`easyhoi.pipeline.reconstruct_photo`.
     max_upload_mb : float
         Uploads larger than this are refused before decoding.
@@ -337,7 +337,7 @@ def handle_request(
     local = run / "input" / f"{stem}{suffix or src.suffix.lower()[:6]}"
     local.parent.mkdir()
     shutil.copyfile(src, local)
-    out_dir = run / "result"
+    out_dir = run / "result" / stem  # the result folder; the download zip is named after it
 
     def on_progress(stage: str, it: int, total: int, losses: dict) -> None:
         if progress is not None:

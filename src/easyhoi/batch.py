@@ -39,7 +39,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from easyhoi.distributed import Task, TaskResult, execute
-from easyhoi.errors import InvalidInputError
+from easyhoi.errors import ExitCode, InvalidInputError
 
 __all__ = [
     "IMAGE_EXTENSIONS",
@@ -477,8 +477,8 @@ class BatchSummary:
 
     @property
     def exit_code(self) -> int:
-        """0 when nothing failed, 8 (some photos of a batch failed) otherwise."""
-        return 8 if self.failed else 0
+        """``ExitCode.OK`` when nothing failed, ``ExitCode.BATCH_PARTIAL`` otherwise."""
+        return ExitCode.BATCH_PARTIAL if self.failed else ExitCode.OK
 
     def line(self) -> str:
         """One-line human summary."""
@@ -642,20 +642,18 @@ def summarize_photo(task: Task) -> dict:
 class ReconstructWorker:
     """The batch worker of ``easyhoi batch``: :func:`easyhoi.pipeline.reconstruct_photo`.
 
-    Parameters
-    ----------
-    config : EasyHOIConfig or None
-        Configuration of every photo (None: the "fast" preset). Picklable, so the worker can be
-        sent to processes and Ray tasks.
-    prompts : mapping or None
-        Batch photo name (``task.key``) -> :class:`~easyhoi.perception.prompts.Prompts`
-        (see :mod:`easyhoi.batch_prompts`).
-    strict : bool
-        A photo with a low-confidence mask fails (``LowConfidenceError``) and writes nothing.
+    Args:
+        settings: The run's :class:`~easyhoi.settings.RunSettings`, or a configuration they are
+            resolved from once per process (None: the "fast" preset). Picklable, so the worker
+            can be sent to processes and Ray tasks. Each photo runs with its task's seed.
+        prompts: Batch photo name (``task.key``) -> :class:`~easyhoi.perception.prompts.Prompts`
+            (see :mod:`easyhoi.batch_prompts`).
+        strict: A photo with a low-confidence mask fails (``LowConfidenceError``) and writes
+            nothing.
     """
 
-    def __init__(self, config=None, prompts=None, strict: bool = False):
-        self.config = config
+    def __init__(self, settings=None, prompts=None, strict: bool = False):
+        self.settings = settings
         self.prompts = dict(prompts or {})
         self.strict = bool(strict)
 
@@ -665,22 +663,19 @@ class ReconstructWorker:
         Returns timing, file count, and what the user must hear about perception:
         ``notes`` (the hand used is not the first detected) and ``warnings`` (low confidence).
         """
-        from easyhoi.io.result_folder import write_result_folder
         from easyhoi.perception.feedback import hand_choice_note, low_confidence_lines
         from easyhoi.pipeline import reconstruct_photo
+        from easyhoi.settings import RunSettings, resolve_run
 
+        if not isinstance(self.settings, RunSettings):
+            self.settings = resolve_run(self.settings)
         prompts = self.prompts.get(task.key)
-        rec = reconstruct_photo(task.image, None, self.config, seed=task.seed, prompts=prompts,
-                                strict=self.strict)  # fmt: skip
-        out = Path(task.output)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        # the result folder is named after the image name's stem: give it the planned name
-        name = out.name + (Path(task.image).suffix or ".img")
-        files = write_result_folder(rec.result, rec.inp, out.parent, name)
+        rec = reconstruct_photo(task.image, task.output, self.settings, seed=task.seed,
+                                prompts=prompts, strict=self.strict)  # fmt: skip
         note = hand_choice_note(rec.perception)
         prompted = prompts is not None and prompts.has_object_prompt
         return {
-            "seconds": round(float(rec.seconds), 3), "files": len(files),
+            "seconds": round(float(rec.seconds), 3), "files": len(rec.files),
             "notes": [note] if note else [],
             "warnings": low_confidence_lines(rec.perception, "batch", prompted),
         }  # fmt: skip

@@ -364,24 +364,18 @@ class RestrictedUnpickler(pickle.Unpickler):
 def load_mano_pickle(path: str | Path) -> dict[str, Any]:
     """Read a MANO ``.pkl`` safely and return its content with plain numpy / scipy values.
 
-    Parameters
-    ----------
-    path : str or Path
-        The pickle file (Python-2 pickles are read with ``encoding="latin1"``).
+    Args:
+        path (str or Path): The pickle file (Python-2 pickles are read with ``encoding="latin1"``).
 
-    Returns
-    -------
-    dict
-        Keys of the file (``v_template`` (778, 3), ``shapedirs`` (778, 3, 10), ``J_regressor``
-        (16, 778) sparse, ...); chumpy objects become ``np.ndarray``, sparse matrices become
-        ``scipy.sparse`` csc / csr matrices.
+    Returns:
+        dict: Keys of the file (``v_template`` (778, 3), ``shapedirs`` (778, 3, 10), ``J_regressor``
+            (16, 778) sparse, ...); chumpy objects become ``np.ndarray``, sparse matrices become
+            ``scipy.sparse`` csc / csr matrices.
 
-    Raises
-    ------
-    UnsafeFileError
-        The file names a global outside the allow-list (nothing it names is ever called).
-    InvalidInputError
-        The file cannot be read, is not a pickle, or does not hold a dictionary.
+    Raises:
+        UnsafeFileError: The file names a global outside the allow-list (nothing it names is ever
+            called).
+        InvalidInputError: The file cannot be read, is not a pickle, or does not hold a dictionary.
     """
     path = Path(path)
     try:
