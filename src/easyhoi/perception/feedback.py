@@ -72,12 +72,15 @@ def low_confidence_error(perception: dict, prompted: bool = False) -> LowConfide
 def hand_choice_note(perception: dict) -> str | None:
     """A sentence when the result uses another hand than the first detected one, else None."""
     index = perception.get("hand_index")
+    if index is None:  # a report that names the hand used only in its notes
+        used = [n for n in perception.get("notes") or () if n.startswith("using hand ")]
+        index = int(used[-1].split()[2]) if used else None
     if not index:
         return None
     side = perception.get("side") or "?"
     if perception.get("hand_choice") == "hand point":
         return f"using hand {index} ({side}), the hand nearest the hand point"
-    skipped = [n for n in perception.get("notes") or () if "holds no object" in n]
+    skipped = [n for n in perception.get("notes") or () if n.endswith("holds no object")]
     why = "; ".join(skipped) or "the hands before it hold no object"
     return (
         f"{why}: the result uses hand {index} ({side}) of {perception.get('hands_found')} "
