@@ -272,7 +272,11 @@ def test_low_confidence_without_strict_writes_the_result_and_warns(
     conf = res["meta"]["perception"]["confidence"]
     assert conf["hand"] == {"score": 0.2, "low": True, "reasons": ["few skin pixels"]}
     report = (tmp_path / "o" / "scene" / "report.html").read_text()
-    assert "few skin pixels" in report
+    section = report.split("<h2>Perception confidence</h2>", 1)[1].split("<h2>", 1)[0]
+    assert "<td>hand</td>" in section and "<td>yes</td><td>few skin pixels</td>" in section
+    assert "<td>object</td>" in section and "<td>no</td>" not in section  # 0.45 is low too
+    assert "hand used: 1 (right) of 2 detected, first holding an object" in section
+    assert "prompts (photo pixels): {&quot;object_points&quot;: [[60.0, 70.0]]}" in section
 
 
 def test_help_lists_the_strict_exit_code(capsys):

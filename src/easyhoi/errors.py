@@ -15,6 +15,7 @@ __all__ = [
     "EasyHOIError",
     "ExitCode",
     "InvalidInputError",
+    "LowConfidenceError",
     "MissingDependencyError",
     "NoHandError",
     "NoObjectError",
