@@ -309,6 +309,19 @@ def hand_keypoints(u0=10.0, v0=30.0, size=20.0) -> np.ndarray:
     return k
 
 
+def test_mask_confidences_name_the_weak_cues():
+    from easyhoi.perception.adapters.grounded_sam import mask_confidences
+
+    conf = mask_confidences(0.9, 0.3, 0.05)
+    assert conf["hand"].score == 0.9 and conf["hand"].reasons == () and not conf["hand"].low
+    assert conf["object"].low and conf["object"].reasons == (
+        "SAM predicts an IoU of 0.30",
+        "the detector found the object box with score 0.05 only",
+    )
+    assert set(mask_confidences(1.2, None)) == {"hand"}
+    assert mask_confidences(1.2, None)["hand"].score == 1.0
+
+
 def test_choose_box_prefers_the_box_at_the_grasp_over_a_higher_score_far_away():
     k = hand_keypoints()  # grasp centre: mean of bases and tips
     g = grasp_centre(k)
@@ -384,6 +397,11 @@ def test_grounded_sam_segments_hand_and_object(owl_dir, sam_dir):
         boxes[choose_box(boxes, scores, hand.keypoints2d, (80, 60))].tolist()
     )
     assert seg.segment(img, hand).object_mask.tolist() == out.object_mask.tolist()  # same again
+    # confidence: SAM's predicted IoU of each mask
+    assert out.confidence["hand"].score == pytest.approx(np.clip(out.meta["hand_sam_iou"], 0, 1))
+    assert out.confidence["object"].score == pytest.approx(
+        np.clip(out.meta["object_sam_iou"], 0, 1)
+    )
     # prompts replace the detector: a box, or points alone
     seg.last_detections = None
     boxed = seg.segment(img, hand, prompts=Prompts(object_box=(40.0, 10.0, 75.0, 50.0)))

@@ -94,3 +94,35 @@ def test_prompts_outside_the_image_and_unprompted_segmenters_are_refused(config)
     with pytest.raises(NoObjectError):
         perceive(IMAGE, unprompted, prompts=Prompts(hand_point=(25.0, 10.0)))
     assert Recording.calls == []
+
+
+def test_the_segmenters_confidence_reaches_the_report(config, monkeypatch):
+    from easyhoi.perception.confidence import MaskConfidence
+
+    class Rated:
+        def segment(self, image, hand, prompts=None):
+            obj = np.zeros(image.shape[:2], bool)
+            obj[30:70, 120:170] = True
+            hand_mask = np.zeros_like(obj)
+            hand_mask[30:70, 140:180] = True
+            hand_mask &= ~obj
+            conf = {"hand": MaskConfidence(0.8), "object": MaskConfidence(0.3, ("faint edge",))}
+            return Segmentation(hand_mask, obj, hand.side == "right", confidence=conf)
+
+    monkeypatch.setitem(base._REGISTRY["segmenter"], "rated", Rated)
+    rated = replace(config, perception=replace(config.perception, segmenter="rated"))
+    img = np.random.default_rng(0).integers(0, 255, (100, 200, 3), dtype=np.uint8)
+    inp, report = perceive(img, rated)
+    assert report.hand_index == 1 and report.side == "right"
+    assert report.low_confidence == ["object"]
+    assert inp.meta["perception"]["confidence"]["object"] == {
+        "score": 0.3, "low": True, "reasons": ["faint edge"]
+    }  # fmt: skip
+    assert inp.meta["perception"]["notes"][0] == "hand 0 (left) holds no object"
+    # an imported object mask replaces the segmenter's object mask and its confidence
+    from easyhoi.perception.chain import Provided
+
+    given = np.zeros((100, 200), bool)
+    given[40:60, 130:160] = True
+    _, report = perceive(img, rated, provided=Provided(object_mask=given))
+    assert set(report.confidence) == {"hand"}

@@ -167,11 +167,14 @@ def perceive(
             if pv.hand_mask is not None or pv.object_mask is not None:
                 hm = s.hand_mask if pv.hand_mask is None else pv.hand_mask
                 om = s.object_mask if pv.object_mask is None else pv.object_mask
-                s = Segmentation(hm, om, bool(om.any()), s.candidates, s.meta)
+                conf = {k: v for k, v in s.confidence.items()
+                        if getattr(pv, f"{k}_mask", None) is None}  # fmt: skip
+                s = Segmentation(hm, om, bool(om.any()), s.candidates, s.meta, conf)
         if s.has_object:
             chosen, seg = hand, s
             report.hand_index = i
             report.hand_choice = report.hand_choice or "first holding an object"
+            report.confidence.update(s.confidence)
             break
         report.notes.append(f"hand {i} ({hand.side}) holds no object")
     if chosen is None:

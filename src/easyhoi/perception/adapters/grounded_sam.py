@@ -14,6 +14,8 @@ two open models a user may have on disk:
 3. the object mask: SAM prompted with that box, minus the hand mask (the fingers in front of
    the object occlude it).
 
+Each mask's confidence is SAM's own prediction of its IoU (:func:`mask_confidences`).
+
 Prompts take precedence over the detector: an ``object_box`` replaces its box, and
 ``object_points`` are given to SAM as positive points (with the box when there is one); with
 either, the detector is not run.
@@ -90,6 +92,31 @@ def choose_box(
     rank[(areas > max_area * W * H) | (areas <= 0)] = -np.inf
     best = int(np.argmax(rank))
     return None if not np.isfinite(rank[best]) else best
+
+
+def mask_confidences(
+    hand_iou: float, object_iou: float | None, detector_score: float | None = None
+) -> dict:
+    """Confidence of the masks from SAM's predicted IoU (and the detector's score).
+
+    SAM is trained to predict the IoU of each mask it returns with the true mask, so that
+    prediction is the score. A detector score under 0.1 is named as a weak cue: the box SAM
+    was given is itself a guess.
+    """
+    from easyhoi.perception.confidence import MaskConfidence
+
+    def one(iou, extra=()):
+        iou = float(np.clip(iou, 0.0, 1.0))
+        why = [f"SAM predicts an IoU of {iou:.2f}"] if iou < 0.5 else []
+        return MaskConfidence(iou, (*why, *extra))
+
+    out = {"hand": one(hand_iou)}
+    if object_iou is not None:
+        weak = ()
+        if detector_score is not None and detector_score < 0.1:
+            weak = (f"the detector found the object box with score {detector_score:.2f} only",)
+        out["object"] = one(object_iou, weak)
+    return out
 
 
 def _model_type(folder: Path) -> str:
@@ -204,13 +231,16 @@ class GroundedSamSegmenter:
             boxes, scores = self.detect(img)
             best = choose_box(boxes, scores, k, (W, H))
             if best is None:
-                return Segmentation(hand_mask, empty, False, meta={**meta, "hand_sam_iou":
-                                                                   hand_score})  # fmt: skip
+                meta["hand_sam_iou"] = hand_score
+                conf = mask_confidences(hand_score, None)
+                return Segmentation(hand_mask, empty, False, meta=meta, confidence=conf)
             box = tuple(float(v) for v in boxes[best])
             meta["detector_score"] = float(scores[best])
         if not points:  # SAM needs a point: the box centre
             points = (((box[0] + box[2]) / 2, (box[1] + box[3]) / 2),)
         obj = self.sam.predict(img, np.asarray(points, float), box) & ~hand_mask
-        meta.update(hand_sam_iou=hand_score, object_sam_iou=float(np.max(self.sam.last_scores)),
+        obj_score = float(np.max(self.sam.last_scores))
+        meta.update(hand_sam_iou=hand_score, object_sam_iou=obj_score,
                     object_box=None if box is None else [float(v) for v in box])  # fmt: skip
-        return Segmentation(hand_mask, obj, bool(obj.any()), (obj,), meta)
+        conf = mask_confidences(hand_score, obj_score, meta.get("detector_score"))
+        return Segmentation(hand_mask, obj, bool(obj.any()), (obj,), meta, conf)
