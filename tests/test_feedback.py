@@ -53,3 +53,11 @@ def test_hand_choice_note():
     # a report that names the hand used only in its notes
     named = {**base, "notes": base["notes"] + ["using hand 1 (left)"]}
     assert hand_choice_note(named).startswith("hand 0 (right) holds no object: the result uses")
+
+
+def test_hand_choice_note_of_an_object_prompt():
+    perception = {"hands_found": 2, "side": "left", "hand_index": 1,
+                  "hand_choice": "object prompt"}  # fmt: skip
+    assert hand_choice_note(perception) == (
+        "using hand 1 (left), the hand nearest the object prompt"
+    )

@@ -77,11 +77,16 @@ def test_hand_point_segments_only_the_pointed_hand(config):
     assert Recording.calls == [("right", None)]  # no object prompt: the segmenter gets none
 
 
-def test_object_prompts_reach_the_segmenter(config):
-    prompts = Prompts(object_points=((30.0, 40.0),), object_box=(10.0, 10.0, 60.0, 90.0))
-    with pytest.raises(NoObjectError):
+def test_object_prompts_reach_the_segmenter_of_the_nearest_hand(config):
+    prompts = Prompts(object_points=((30.0, 40.0), (70.0, 40.0)), object_box=(150, 10, 199, 90))
+    with pytest.raises(NoObjectError, match=r"nearest the object prompt \(hand 0, left\)"):
         perceive(IMAGE, config, prompts=prompts)
-    assert Recording.calls == [("left", prompts), ("right", prompts)]
+    assert Recording.calls == [("left", prompts)]  # the points' mean (50, 40) is at the left hand
+    Recording.calls = []
+    boxed = Prompts(object_box=(150.0, 10.0, 199.0, 90.0))  # centre (174.5, 50): right hand
+    with pytest.raises(NoObjectError, match=r"hand 1, right"):
+        perceive(IMAGE, config, prompts=boxed)
+    assert Recording.calls == [("right", boxed)]
 
 
 def test_prompts_outside_the_image_and_unprompted_segmenters_are_refused(config):

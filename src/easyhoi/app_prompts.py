@@ -171,12 +171,12 @@ SegmentFn = Callable[[np.ndarray, object, Prompts | None], tuple]
 def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
     """Hand detection and segmentation of the perception chain, with the prompts.
 
-    The hand is the one nearest the hand point, else the first that holds an object, as in
-    :func:`easyhoi.perception.chain.perceive`. Returns ``(hand mask, object mask, facts)``;
-    facts holds ``hands_found``, ``hand_index`` and ``side``.
+    The hand is chosen as in :func:`easyhoi.perception.chain.perceive`
+    (:func:`~easyhoi.perception.chain.prompted_hand_order`). Returns
+    ``(hand mask, object mask, facts)``; facts holds ``hands_found``, ``hand_index``, ``side``.
     """
     from easyhoi.errors import NoHandError, NoObjectError
-    from easyhoi.perception.chain import _backend, _prompted, nearest_hand
+    from easyhoi.perception.chain import _backend, _prompted, prompted_hand_order
 
     pc = config.perception
     H, W = rgb.shape[:2]
@@ -187,9 +187,7 @@ def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
     if not hands:
         raise NoHandError("no hand found in the photo")
     segment = _prompted(segmenter, pc.segmenter, prompts)
-    order = list(range(len(hands)))
-    if prompts is not None and prompts.hand_point is not None:
-        order = [nearest_hand(hands, prompts.hand_point)]
+    order, _ = prompted_hand_order(hands, prompts)
     for i in order:
         seg = segment(rgb, hands[i])
         if seg.has_object:

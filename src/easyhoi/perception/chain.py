@@ -45,7 +45,7 @@ class PerceptionReport:
     confidence: dict = field(default_factory=dict)
     #: index, in detection order, of the hand the result uses (None before one is chosen)
     hand_index: int | None = None
-    #: how that hand was chosen: "first holding an object" or "hand point"
+    #: how that hand was chosen: "first holding an object", "hand point" or "object prompt"
     hand_choice: str | None = None
 
     def to_dict(self) -> dict:
@@ -153,10 +153,7 @@ def perceive(
     if not hands:
         raise NoHandError("no hand found in the photo")
     segment = None if masks_given else _prompted(segmenter, pc.segmenter, prompts)
-    order = list(range(len(hands)))
-    if prompts is not None and prompts.hand_point is not None and not masks_given:
-        order = [nearest_hand(hands, prompts.hand_point)]
-        report.hand_choice = "hand point"
+    order, report.hand_choice = prompted_hand_order(hands, None if masks_given else prompts)
     chosen = seg = None
     for i in order:
         hand = hands[i]
@@ -178,10 +175,11 @@ def perceive(
             break
         report.notes.append(f"hand {i} ({hand.side}) holds no object")
     if chosen is None:
-        if report.hand_choice == "hand point":
+        if report.hand_choice is not None:
             i = order[0]
             raise NoObjectError(
-                f"the hand nearest the hand point (hand {i}, {hands[i].side}) holds no object"
+                f"the hand nearest the {report.hand_choice} (hand {i}, {hands[i].side}) holds "
+                "no object"
             )
         raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
     report.side, report.has_object = chosen.side, True
@@ -247,6 +245,27 @@ def nearest_hand(hands: list[HandDetection], point) -> int:
         k = np.asarray(hand.keypoints2d, float).reshape(-1, 2)
         dists.append(np.linalg.norm(k - p, axis=1).min() if len(k) else np.inf)
     return int(np.argmin(dists))
+
+
+def prompted_hand_order(
+    hands: list[HandDetection], prompts: Prompts | None
+) -> tuple[list[int], str | None]:
+    """The hands to segment, in order, and why: (indices, "hand point" / "object prompt" / None).
+
+    A hand point picks the hand nearest to it; object prompts alone pick the hand nearest to
+    the object (the mean of its points, else the box centre): a held object lies at the hand
+    that holds it. Without prompts every hand is tried in detection order (reason None).
+    """
+    if prompts is not None and prompts.hand_point is not None:
+        return [nearest_hand(hands, prompts.hand_point)], "hand point"
+    if prompts is not None and prompts.has_object_prompt:
+        if prompts.object_points:
+            centre = np.mean(np.asarray(prompts.object_points, float), axis=0)
+        else:
+            x0, y0, x1, y1 = prompts.object_box
+            centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+        return [nearest_hand(hands, centre)], "object prompt"
+    return list(range(len(hands))), None
 
 
 def _prompted(segmenter, name: str, prompts: Prompts | None):

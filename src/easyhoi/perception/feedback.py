@@ -78,8 +78,8 @@ def hand_choice_note(perception: dict) -> str | None:
     if not index:
         return None
     side = perception.get("side") or "?"
-    if perception.get("hand_choice") == "hand point":
-        return f"using hand {index} ({side}), the hand nearest the hand point"
+    if perception.get("hand_choice") in ("hand point", "object prompt"):
+        return f"using hand {index} ({side}), the hand nearest the {perception['hand_choice']}"
     skipped = [n for n in perception.get("notes") or () if n.endswith("holds no object")]
     why = "; ".join(skipped) or "the hands before it hold no object"
     return (
