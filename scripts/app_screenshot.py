@@ -170,13 +170,17 @@ def free_port() -> int:
 
 
 def start_demo(reconstruct_fn=None, preset: str = "fast", port: int | None = None,
-               segment_fn=None):  # fmt: skip
-    """Serve the demo in a background thread; returns ``(app, url)``. Stop with ``app.close()``."""
+               segment_fn=None, examples=()):  # fmt: skip
+    """Serve the demo in a background thread; returns ``(app, url)``. Stop with ``app.close()``.
+
+    ``examples``: example photos offered on the page (none by default: rendering the synthetic
+    ones takes seconds).
+    """
     from easyhoi.app import launch
 
     port = port or free_port()
     app = launch("127.0.0.1", port, preset=preset, reconstruct_fn=reconstruct_fn, block=False,
-                 quiet=True, examples=[], segment_fn=segment_fn)  # fmt: skip
+                 quiet=True, examples=list(examples), segment_fn=segment_fn)  # fmt: skip
     return app, f"http://127.0.0.1:{port}/"
 
 

@@ -242,3 +242,35 @@ def test_click_on_the_photo_adds_a_point_previews_the_mask_and_runs_with_it(serv
     assert "click on the held object in the photo" in warn.text
     assert PROMPTS_SEEN[-1] is None
     driver.save_screenshot(str(tmp_path / "page.png"))
+
+
+def test_an_example_photo_fills_the_preview_and_runs(driver, tmp_path_factory):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    from easyhoi.app_request import synthetic_examples
+
+    (example,) = synthetic_examples(tmp_path_factory.mktemp("examples"), seeds=(1,))
+    app, url = standin.start_demo(slowed_standin, examples=[example])
+    try:
+        wait = WebDriverWait(driver, 60)
+        driver.get(url)
+        button = wait.until(ec.element_to_be_clickable((By.CSS_SELECTOR, "button.gallery-item")))
+        assert button.text == "synthetic-1.png"
+        button.click()
+        img = wait.until(ec.visibility_of_element_located((By.CSS_SELECTOR, "#preview img")))
+        shown = np.asarray(Image.open(io.BytesIO(_get(img.get_attribute("src")))).convert("RGB"))
+        photo_rgb = np.asarray(Image.open(example).convert("RGB"))
+        assert shown.shape == photo_rgb.shape  # 256 px: shown as it is
+        assert np.abs(shown.astype(int) - photo_rgb).mean() < 3  # (lossy on the page)
+        PROMPTS_SEEN.clear()
+        driver.find_element(By.CSS_SELECTOR, "#run").click()
+        WebDriverWait(driver, 90).until(
+            ec.presence_of_element_located((By.CSS_SELECTOR, "#overlay img[src]"))
+        )
+        assert PROMPTS_SEEN == [None]
+        assert not any(e.is_displayed() and e.text for e in
+                       driver.find_elements(By.CSS_SELECTOR, "#error"))  # fmt: skip
+    finally:
+        app.close()
