@@ -173,6 +173,11 @@ def test_sam_adapter_mask_matches_image(sam_dir):
     np.testing.assert_array_equal(mask, again)
     with pytest.raises(InvalidInputError, match="box"):
         seg.segment(img, pts, (10, 10, 5, 20), vis)
+    # a box alone, points alone, neither
+    assert seg.predict(img, None, box).shape == (60, 80)
+    assert seg.predict(img, pts, None).dtype == bool
+    with pytest.raises(InvalidInputError, match="point prompts, a box, or both"):
+        seg.predict(img, np.zeros((0, 2)), None)
     with pytest.raises(InvalidInputError, match="image"):
         seg.segment(img, pts, box, vis[:10])
 

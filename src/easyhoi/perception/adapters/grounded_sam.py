@@ -236,9 +236,9 @@ class GroundedSamSegmenter:
                 return Segmentation(hand_mask, empty, False, meta=meta, confidence=conf)
             box = tuple(float(v) for v in boxes[best])
             meta["detector_score"] = float(scores[best])
-        if not points:  # SAM needs a point: the box centre
-            points = (((box[0] + box[2]) / 2, (box[1] + box[3]) / 2),)
-        obj = self.sam.predict(img, np.asarray(points, float), box) & ~hand_mask
+        # a box alone is SAM's box prompt: its centre may lie on the fingers in front
+        obj = self.sam.predict(img, np.asarray(points, float) if points else None, box)
+        obj &= ~hand_mask
         obj_score = float(np.max(self.sam.last_scores))
         meta.update(hand_sam_iou=hand_score, object_sam_iou=obj_score,
                     object_box=None if box is None else [float(v) for v in box])  # fmt: skip

@@ -117,10 +117,10 @@ class SamAmodalSegmenter:
     def predict(
         self,
         image: np.ndarray,
-        points: np.ndarray,
+        points: np.ndarray | None,
         box: tuple[float, float, float, float] | None = None,
     ) -> np.ndarray:
-        """(H, W) bool: the best of SAM's three masks for positive ``points`` (and a ``box``).
+        """(H, W) bool: the best of SAM's three masks for positive ``points`` and/or a ``box``.
 
         The image embedding of the latest photo is kept, so prompting the same photo again
         costs only the mask decoder.
@@ -131,22 +131,18 @@ class SamAmodalSegmenter:
 
         img = check_image(image)
         H, W = img.shape[:2]
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        if len(pts) == 0 or not np.isfinite(pts).all():
-            raise InvalidInputError("SAM needs at least one finite (u, v) point prompt")
+        pts = np.zeros((0, 2)) if points is None else np.asarray(points, np.float64).reshape(-1, 2)
+        if not np.isfinite(pts).all() or (len(pts) == 0 and box is None):
+            raise InvalidInputError("SAM needs finite (u, v) point prompts, a box, or both")
         kw = {}
+        if len(pts):
+            kw.update(input_points=[[pts.tolist()]], input_labels=[[[1] * len(pts)]])
         if box is not None:
             b = [float(x) for x in np.asarray(box, dtype=np.float64).reshape(4)]
             if not (b[0] < b[2] and b[1] < b[3]):
                 raise InvalidInputError(f"box must be (u0, v0, u1, v1) with u0 < u1, v0 < v1: {b}")
             kw["input_boxes"] = [[b]]
-        inputs = self.processor(
-            images=img,
-            input_points=[[pts.tolist()]],
-            input_labels=[[[1] * len(pts)]],
-            return_tensors="pt",
-            **kw,
-        )
+        inputs = self.processor(images=img, return_tensors="pt", **kw)
         sizes = (inputs.pop("original_sizes"), inputs.pop("reshaped_input_sizes"))
         pixels = inputs.pop("pixel_values")
         inputs = {k: v.to(self.device) for k, v in inputs.items()}
