@@ -419,6 +419,70 @@ def test_grounded_sam_segments_hand_and_object(owl_dir, sam_dir):
         seg.segment(img, HandDetection(np.zeros((0, 2)), None, "right", 1.0))
 
 
+@pytest.fixture(scope="module")
+def dino_dir(tmp_path_factory):
+    tf = pytest.importorskip("transformers", reason="transformers not installed (extra 'sam')")
+    import torch
+
+    folder = tmp_path_factory.mktemp("grounding-dino")
+    words = ["[PAD]", "[UNK]", "[CLS]", "[SEP]", "[MASK]", ".", "an", "object", "held", "by", "a",
+             "hand"]  # fmt: skip
+    (folder / "vocab.txt").write_text("\n".join(words) + "\n")
+    tok = tf.BertTokenizer(vocab_file=str(folder / "vocab.txt"))
+    backbone = tf.SwinConfig(
+        window_size=7, embed_dim=8, depths=[1, 1, 1, 1], num_heads=[1, 1, 1, 1], image_size=64,
+        out_features=["stage2", "stage3", "stage4"], out_indices=[2, 3, 4],
+    )  # fmt: skip
+    text = {"hidden_size": 8, "num_hidden_layers": 1, "num_attention_heads": 2,
+            "intermediate_size": 8, "max_position_embeddings": 32, "model_type": "bert",
+            "vocab_size": len(words)}  # fmt: skip
+    cfg = tf.GroundingDinoConfig(
+        backbone_config=backbone, text_config=text, d_model=32, encoder_layers=1,
+        decoder_layers=2, encoder_attention_heads=2, decoder_attention_heads=2,
+        encoder_ffn_dim=16, decoder_ffn_dim=16, num_queries=5, num_feature_levels=4,
+        encoder_n_points=2, decoder_n_points=2, max_text_len=32,
+    )  # fmt: skip
+    torch.manual_seed(0)
+    tf.GroundingDinoForObjectDetection(cfg).save_pretrained(folder)
+    ip = tf.GroundingDinoImageProcessor(size={"shortest_edge": 64, "longest_edge": 96})
+    tf.GroundingDinoProcessor(image_processor=ip, tokenizer=tok).save_pretrained(folder)
+    return folder
+
+
+def test_grounded_sam_reads_grounding_dino(dino_dir, sam_dir):
+    from easyhoi.perception.base import HandDetection
+
+    seg = GroundedSamSegmenter(detector_dir=dino_dir, sam_dir=sam_dir, min_score=0.0)
+    assert seg.kind == "grounding-dino"
+    img = photo()
+    boxes, scores = seg.detect(img)
+    assert boxes.shape == (5, 4) and scores.shape == (5,)  # one per query
+    assert np.all((0 <= scores) & (scores <= 1)) and np.all(np.diff(scores) <= 0)
+    assert np.all(boxes[:, [0, 2]] <= 80) and np.all(boxes[:, [1, 3]] <= 60)
+    out = seg.segment(img, HandDetection(hand_keypoints(), None, "right", 0.9))
+    assert out.hand_mask.shape == out.object_mask.shape == (60, 80)
+    assert out.object_mask.dtype == bool and not (out.hand_mask & out.object_mask).any()
+
+
+def test_grounded_sam_box_pixels_follow_grounding_dino_fractions(dino_dir, sam_dir):
+    import torch
+
+    seg = GroundedSamSegmenter(detector_dir=dino_dir, sam_dir=sam_dir, min_score=0.3)
+
+    class Fixed(torch.nn.Module):
+        def forward(self, **inputs):
+            inf = float("-inf")
+            logits = torch.tensor([[[1.0, 3.0, inf], [0.0, -1.0, inf]]])  # best token per box
+            boxes = torch.tensor([[[0.5, 0.5, 0.5, 0.5], [0.25, 0.25, 0.1, 0.2]]])
+            return type("Out", (), {"logits": logits, "pred_boxes": boxes})()
+
+    seg.detector = Fixed()
+    boxes, scores = seg.detect(photo((60, 80)))
+    np.testing.assert_allclose(scores, [1 / (1 + np.exp(-3)), 0.5])
+    # fractions of the 80x60 photo: (40, 30, 40, 30) -> (20, 15, 60, 45); (20, 15, 8, 12)
+    np.testing.assert_allclose(boxes, [[20, 15, 60, 45], [16, 9, 24, 21]])
+
+
 def test_grounded_sam_box_pixels_follow_owlv2_square_padding(owl_dir, sam_dir):
     import torch
 
@@ -443,8 +507,8 @@ def test_grounded_sam_folders_are_checked(owl_dir, sam_dir, tmp_path):
         GroundedSamSegmenter(detector_dir=tmp_path / "missing", sam_dir=sam_dir)
     with pytest.raises(InvalidInputError, match="SAM adapter needs model_dir"):
         GroundedSamSegmenter(detector_dir=owl_dir, sam_dir=None)
-    with pytest.raises(InvalidInputError, match="holds a 'sam' model; the grounded-sam segmenter "
-                                                "reads owlv2 detectors"):  # fmt: skip
+    refused = "holds a 'sam' model; the grounded-sam segmenter reads owlv2, grounding-dino"
+    with pytest.raises(InvalidInputError, match=refused):
         GroundedSamSegmenter(detector_dir=sam_dir, sam_dir=sam_dir)
 
 

@@ -535,8 +535,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sam-dir", help="local SAM model folder (uses the 'sam' amodal backend)")
     p.add_argument("--depth-dir", help="local depth model folder (uses the 'depth' object backend)")
     p.add_argument("--diffusion-dir", help="local diffusers inpainting pipeline folder")
-    p.add_argument("--detector-dir", help="local OWLv2 detector folder (uses the 'grounded-sam' "
-                   "segmenter with --sam-dir)")  # fmt: skip
+    p.add_argument("--detector-dir", help="local OWLv2 or Grounding DINO folder (uses the "
+                   "'grounded-sam' segmenter with --sam-dir)")  # fmt: skip
     p.add_argument("--hand-mask", help="visible hand mask PNG (replaces segmentation)")
     p.add_argument("--object-mask", help="visible held-object mask PNG")
     p.add_argument("--amodal-mask", help="complete (amodal) object mask PNG")

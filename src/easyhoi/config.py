@@ -367,7 +367,8 @@ class PerceptionConfig:
     """Local folder of a SAM model (transformers format) for the "sam" amodal backend and the
     "grounded-sam" segmenter."""
     detector_dir: str | None = None
-    """Local folder of an OWLv2 detector (transformers) for the "grounded-sam" segmenter."""
+    """Local folder of an OWLv2 or Grounding DINO detector (transformers) for the
+    "grounded-sam" segmenter."""
     depth_dir: str | None = None
     """Local folder of a depth-estimation model (transformers) for the "depth" object backend."""
     diffusion_dir: str | None = None

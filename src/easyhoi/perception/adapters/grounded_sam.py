@@ -1,4 +1,4 @@
-"""Held-object segmentation by a text-prompted detector (OWLv2) feeding SAM, from local folders.
+"""Held-object segmentation by a text-prompted detector feeding SAM, both from local folders.
 
 The paper finds the held object with a large reasoning segmenter. This route does the same with
 two open models a user may have on disk:
@@ -20,9 +20,10 @@ Prompts take precedence over the detector: an ``object_box`` replaces its box, a
 ``object_points`` are given to SAM as positive points (with the box when there is one); with
 either, the detector is not run.
 
-The detector must be OWLv2 in transformers format (``Owlv2ForObjectDetection`` and its
-processor, e.g. a saved ``google/owlv2-base-patch16-ensemble``); SAM as for
-:mod:`easyhoi.perception.adapters.sam`. Both load with ``local_files_only=True``.
+The detector is OWLv2 (``Owlv2ForObjectDetection``, e.g. a saved
+``google/owlv2-base-patch16-ensemble``) or Grounding DINO (``GroundingDinoForObjectDetection``,
+e.g. ``IDEA-Research/grounding-dino-tiny``) in transformers format with its processor; SAM as
+for :mod:`easyhoi.perception.adapters.sam`. Both load with ``local_files_only=True``.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from easyhoi.perception.base import HandDetection, Segmentation, register
 #: Keypoints (OpenPose order) whose mean is the grasp centre: finger bases and fingertips.
 GRASP_KEYPOINTS = (5, 9, 13, 17, 4, 8, 12, 16, 20)
 #: Detector model types this adapter reads (config.json "model_type").
-DETECTOR_TYPES = ("owlv2",)
+DETECTOR_TYPES = ("owlv2", "grounding-dino")
 
 
 def grasp_centre(keypoints2d: np.ndarray) -> np.ndarray:
@@ -132,7 +133,7 @@ class GroundedSamSegmenter:
 
     Parameters
     ----------
-    detector_dir : local folder of an OWLv2 detector (transformers format).
+    detector_dir : local folder of an OWLv2 or Grounding DINO detector (transformers format).
     sam_dir : local folder of a SAM model (transformers format).
     query : what the detector is asked for.
     min_score : detections scoring below this are ignored.
@@ -166,9 +167,10 @@ class GroundedSamSegmenter:
                 f"reads {', '.join(DETECTOR_TYPES)} detectors"
             )
         self.sam = SamAmodalSegmenter(model_dir=sam_dir, device=device)
+        self.kind = kind
         try:
-            self.processor = tf.Owlv2Processor.from_pretrained(folder, local_files_only=True)
-            detector_cls = tf.Owlv2ForObjectDetection
+            self.processor = tf.AutoProcessor.from_pretrained(folder, local_files_only=True)
+            detector_cls = tf.AutoModelForZeroShotObjectDetection
             self.detector = detector_cls.from_pretrained(folder, local_files_only=True)
         except (OSError, ValueError) as exc:
             raise BackendError(f"could not load the detector from '{folder}': {exc}") from exc
@@ -185,16 +187,22 @@ class GroundedSamSegmenter:
 
         img = check_image(image)
         H, W = img.shape[:2]
-        inputs = self.processor(text=[[self.query]], images=img, return_tensors="pt")
+        if self.kind == "owlv2":
+            inputs = self.processor(text=[[self.query]], images=img, return_tensors="pt")
+            # OWLv2 pads the photo to a square (right and bottom) before resizing: boxes are
+            # fractions of the padded side
+            scale = np.array([max(H, W), max(H, W)], float)
+        else:  # Grounding DINO: a lower-case phrase ending with a dot; boxes are fractions
+            text = self.query.lower().rstrip(".") + "."  # of the photo's width and height
+            inputs = self.processor(images=img, text=text, return_tensors="pt")
+            scale = np.array([W, H], float)
         inputs = {k: v.to(self.device) for k, v in inputs.items()}
         with torch.no_grad():
             out = self.detector(**inputs)
+        # a box's score: its best text token (padding tokens carry -inf logits)
         scores = torch.sigmoid(out.logits[0].float()).amax(dim=-1).cpu().numpy()
         cxcywh = out.pred_boxes[0].float().cpu().numpy()
-        # OWLv2 pads the photo to a square (right and bottom) before resizing: boxes are
-        # fractions of the padded side
-        side = float(max(H, W))
-        c, wh = cxcywh[:, :2] * side, cxcywh[:, 2:] * side
+        c, wh = cxcywh[:, :2] * scale, cxcywh[:, 2:] * scale
         boxes = np.concatenate([c - wh / 2, c + wh / 2], axis=1)
         boxes[:, [0, 2]] = boxes[:, [0, 2]].clip(0, W)
         boxes[:, [1, 3]] = boxes[:, [1, 3]].clip(0, H)
