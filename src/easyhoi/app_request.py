@@ -11,7 +11,8 @@ Failures reach the page as one readable sentence; tracebacks go to the server lo
 
 The reconstruction is injectable: ``reconstruct_fn(image_path, folder, config, *, seed,
 progress, say)`` with the signature of :func:`easyhoi.pipeline.reconstruct_photo` (the
-default), returning an object whose ``files`` lists what it wrote; the page needs
+default): it writes the result folder ``folder`` and returns an object whose ``files`` lists
+what it wrote; the page needs
 ``overlay.png``, ``scene.glb`` and ``result.json`` among them (see
 :mod:`easyhoi.result_folder`). When the user clicked on the photo, it also gets
 ``prompts=`` (:class:`~easyhoi.perception.prompts.Prompts`, pixels of the upload).

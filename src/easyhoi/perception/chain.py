@@ -295,7 +295,7 @@ def backend_seed(seed: int) -> int:
     return int(seed) % 2**31
 
 
-def _backend(pc, role: str, name: str, seed: int):
+def _backend(pc, role: str, name: str, seed: int = 0):
     """Create a backend: one that takes a ``seed`` gets :func:`backend_seed`, adapters of large
     models get their local model folders from config (one folder as ``model_dir``, several
     each under its field's name)."""
