@@ -131,3 +131,26 @@ def test_the_segmenters_confidence_reaches_the_report(config, monkeypatch):
     given[40:60, 130:160] = True
     _, report = perceive(img, rated, provided=Provided(object_mask=given))
     assert set(report.confidence) == {"hand"}
+
+
+def test_grounded_sam_gets_both_model_folders(monkeypatch, tmp_path):
+    from easyhoi.cli import _config_from_args, build_parser
+    from easyhoi.config import PerceptionConfig
+    from easyhoi.perception import chain
+
+    seen = {}
+
+    def fake_create(role, name, **kw):
+        seen.update(role=role, name=name, **kw)
+        return object()
+
+    monkeypatch.setattr(chain, "create", fake_create)
+    pc = PerceptionConfig(segmenter="grounded-sam", detector_dir="/m/owl", sam_dir="/m/sam")
+    chain._backend(pc, "segmenter", "grounded-sam", 3)
+    assert seen == {"role": "segmenter", "name": "grounded-sam", "detector_dir": "/m/owl",
+                    "sam_dir": "/m/sam"}  # fmt: skip
+    args = build_parser().parse_args(["reconstruct", "x.jpg", "--out", str(tmp_path),
+                                      "--detector-dir", "/m/owl", "--sam-dir", "/m/sam"])  # fmt: skip
+    pc = _config_from_args(args).perception
+    assert (pc.segmenter, pc.detector_dir, pc.amodal, pc.sam_dir) == (
+        "grounded-sam", "/m/owl", "sam", "/m/sam")  # fmt: skip
