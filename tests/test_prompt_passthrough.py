@@ -149,8 +149,8 @@ def test_grounded_sam_gets_both_model_folders(monkeypatch, tmp_path):
     chain._backend(pc, "segmenter", "grounded-sam", 3)
     assert seen == {"role": "segmenter", "name": "grounded-sam", "detector_dir": "/m/owl",
                     "sam_dir": "/m/sam"}  # fmt: skip
-    args = build_parser().parse_args(["reconstruct", "x.jpg", "--out", str(tmp_path),
-                                      "--detector-dir", "/m/owl", "--sam-dir", "/m/sam"])  # fmt: skip
+    flags = ["--detector-dir", "/m/owl", "--sam-dir", "/m/sam"]
+    args = build_parser().parse_args(["reconstruct", "x.jpg", "--out", str(tmp_path), *flags])
     pc = _config_from_args(args).perception
     assert (pc.segmenter, pc.detector_dir, pc.amodal, pc.sam_dir) == (
         "grounded-sam", "/m/owl", "sam", "/m/sam")  # fmt: skip
