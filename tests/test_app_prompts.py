@@ -100,6 +100,25 @@ def test_mask_preview_segments_the_working_photo_with_scaled_prompts(tmp_path):
     assert (shown[5, 5] == 100).all()  # far away: untouched
 
 
+def test_mask_preview_states_the_masks_confidence(tmp_path):
+    src = grey(tmp_path / "p.png")
+    _, _, state = ap.load_preview(src, 20)
+    state = ap.add_click(state, "object point", (100, 100), (512, 410))
+
+    def rated(rgb, config, prompts):
+        hand, obj, facts = standin.standin_segment(rgb, config, prompts)
+        conf = {"hand": {"score": 0.9, "low": False, "reasons": []},
+                "object": {"score": 0.35, "low": True, "reasons": ["faint outline"]}}  # fmt: skip
+        return hand, obj, {**facts, "confidence": conf}
+
+    _, text = ap.mask_preview(src, state, get_preset("fast"), rated)
+    assert "; confidence hand 0.90, object 0.35." in text
+    assert text.endswith(
+        " Low confidence in the object mask (score 0.35; weak: faint outline): click on the parts "
+        "of the object the mask misses and run again."
+    )  # the object was clicked on already: more clicks
+
+
 def test_mask_preview_failures_are_sentences(tmp_path):
     src = grey(tmp_path / "p.png")
     cfg = get_preset("fast")
@@ -138,7 +157,8 @@ def test_default_preview_uses_the_chain_backends(tmp_path, monkeypatch):
     cfg = replace(cfg, perception=replace(cfg.perception, hand="two-hands", segmenter="found"))
     img = np.zeros((100, 200, 3), np.uint8)
     hand, obj, facts = ap.segment_for_preview(img, cfg, None)
-    assert obj.sum() == 100 and facts == {"hands_found": 2, "hand_index": 1, "side": "right"}
+    assert obj.sum() == 100
+    assert facts == {"hands_found": 2, "hand_index": 1, "side": "right", "confidence": {}}
     assert Recording.calls == [("left", None), ("right", None)]
     Recording.calls = []
     pts = Prompts(object_points=((150.0, 40.0),), hand_point=(170.0, 60.0))

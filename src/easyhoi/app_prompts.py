@@ -173,7 +173,8 @@ def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
 
     The hand is chosen as in :func:`easyhoi.perception.chain.perceive`
     (:func:`~easyhoi.perception.chain.prompted_hand_order`). Returns
-    ``(hand mask, object mask, facts)``; facts holds ``hands_found``, ``hand_index``, ``side``.
+    ``(hand mask, object mask, facts)``; facts holds ``hands_found``, ``hand_index``, ``side``
+    and ``confidence`` (mask name -> the JSON form of its MaskConfidence).
     """
     from easyhoi.errors import NoHandError, NoObjectError
     from easyhoi.perception.chain import _backend, _prompted, prompted_hand_order
@@ -191,7 +192,8 @@ def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
     for i in order:
         seg = segment(rgb, hands[i])
         if seg.has_object:
-            facts = {"hands_found": len(hands), "hand_index": i, "side": hands[i].side}
+            facts = {"hands_found": len(hands), "hand_index": i, "side": hands[i].side,
+                     "confidence": {k: v.to_dict() for k, v in seg.confidence.items()}}  # fmt: skip
             return seg.hand_mask, seg.object_mask, facts
     raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
 
@@ -227,8 +229,16 @@ def mask_preview(
             logger.exception("mask preview failed")
         hint = " Click on the held object to point at it." if state_prompts(state) is None else ""
         return None, _readable(exc, {str(path): f"'{Path(str(path)).name}'"}) + hint
+    from easyhoi.perception.feedback import low_confidence_lines
+
     share = float(np.mean(obj)) * 100
     text = f"Object mask: {share:.1f}% of the photo (green); hand (orange)"
     if facts.get("hand_index"):
         text += f"; hand {facts['hand_index']} ({facts.get('side')}) of {facts['hands_found']}"
-    return draw_prompts(thumb, state, (hand, obj)), text + "."
+    conf = facts.get("confidence") or {}
+    if conf:
+        text += "; confidence " + ", ".join(f"{k} {c['score']:.2f}" for k, c in conf.items())
+    prompted = prompts is not None and prompts.has_object_prompt
+    warnings = low_confidence_lines({"confidence": conf}, "demo", prompted)
+    text += "." + "".join(f" {w[0].upper()}{w[1:]}." for w in warnings)
+    return draw_prompts(thumb, state, (hand, obj)), text
