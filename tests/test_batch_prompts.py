@@ -191,3 +191,13 @@ def test_cli_batch_bad_sidecar_exits_2_before_any_work(tmp_path, capsys, monkeyp
     err = capsys.readouterr().err
     assert err.startswith("error: InvalidInputError: prompts file prompts.csv") and message in err
     assert "Traceback" not in err and seen == {} and not out.exists()
+
+
+def test_the_worker_with_prompts_travels_to_other_processes():
+    import pickle
+
+    from easyhoi.batch import ReconstructWorker
+
+    worker = ReconstructWorker(None, prompts={"a.jpg": Prompts(((1.0, 2.0),))}, strict=True)
+    back = pickle.loads(pickle.dumps(worker))
+    assert back.prompts == {"a.jpg": Prompts(((1.0, 2.0),))} and back.strict is True
