@@ -18,6 +18,7 @@ __all__ = [
     "ExitCode",
     "InputTooLargeError",
     "InvalidInputError",
+    "LowConfidenceError",
     "MissingDependencyError",
     "NoHandError",
     "NoObjectError",
@@ -43,6 +44,7 @@ class ExitCode(IntEnum):
     NO_OBJECT = 6
     OPTIMIZATION = 7
     BATCH_PARTIAL = 8
+    LOW_CONFIDENCE = 9
     RESOURCE = 10
     OUTPUT_BUSY = 11
     INTERNAL = 70  # EX_SOFTWARE of sysexits.h
@@ -60,6 +62,7 @@ EXIT_CODE_MEANINGS: dict[ExitCode, str] = {
     ExitCode.NO_OBJECT: "a hand but no held object found",
     ExitCode.OPTIMIZATION: "the optimizer could not produce a valid result",
     ExitCode.BATCH_PARTIAL: "some photos of a batch failed (see its manifest)",
+    ExitCode.LOW_CONFIDENCE: "--strict and a mask has low confidence (nothing written)",
     ExitCode.RESOURCE: "out of a resource: disk full, out of memory, or an input too large",
     ExitCode.OUTPUT_BUSY: "the output folder is in use by another easyhoi run",
     ExitCode.INTERNAL: "internal error, a bug: please report it with the --verbose output",
@@ -153,6 +156,12 @@ class OptimizationError(EasyHOIError, RuntimeError):
     """The optimizer could not produce a valid result (for example NaN losses)."""
 
     exit_code = ExitCode.OPTIMIZATION
+
+
+class LowConfidenceError(EasyHOIError):
+    """Perception is unsure of a mask and the caller asked for certainty (``--strict``)."""
+
+    exit_code = ExitCode.LOW_CONFIDENCE
 
 
 class ResourceError(EasyHOIError, RuntimeError):
