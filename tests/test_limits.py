@@ -119,6 +119,25 @@ def test_huge_seed_and_non_finite_set_refused_with_key_and_range(photo, capsys, 
     assert not out.exists()
 
 
+def _pillow_bomb() -> BaseException:
+    """The error Pillow raises itself when a file declares far too many pixels."""
+    import io
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        crc = zlib.crc32(kind + body) & 0xFFFFFFFF
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", crc)
+
+    ihdr = struct.pack(">IIBBBBB", 20000, 20000, 8, 0, 0, 0, 0)
+    data = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0"))
+    try:
+        Image.open(io.BytesIO(data))
+    except Image.DecompressionBombError as exc:
+        return exc
+    raise AssertionError("Pillow accepted the header")
+
+
 @pytest.mark.parametrize(
     "exc, code, text",
     [
@@ -128,6 +147,7 @@ def test_huge_seed_and_non_finite_set_refused_with_key_and_range(photo, capsys, 
         (MemoryError(), 10, "out of memory"),
         (OSError(errno.EACCES, "Permission denied"), 70, None),
         (InputTooLargeError("x"), 10, "x"),
+        (_pillow_bomb(), 10, "image too large: Image size (400000000 pixels)"),
     ],
 )
 def test_resource_conditions_are_not_bugs(exc, code, text):

@@ -88,14 +88,17 @@ _RESOURCE_ERRNOS = frozenset(
 
 
 def as_resource_error(exc: BaseException) -> ResourceError | None:
-    """A :class:`ResourceError` for a full disk or exhausted memory, else None.
+    """A :class:`ResourceError` for a full disk, exhausted memory or a too large image, else None.
 
-    ``OSError`` with errno ENOSPC/EDQUOT/EFBIG/ENOMEM and ``MemoryError`` are ordinary
-    conditions of the machine, not bugs; the CLI and the batch runner report them with
-    :attr:`ExitCode.RESOURCE` instead of :attr:`ExitCode.INTERNAL`.
+    ``OSError`` with errno ENOSPC/EDQUOT/EFBIG/ENOMEM, ``MemoryError`` and Pillow's
+    ``DecompressionBombError`` are ordinary conditions of the machine or the input, not bugs;
+    the CLI and the batch runner report them with :attr:`ExitCode.RESOURCE` instead of
+    :attr:`ExitCode.INTERNAL`.
     """
     if isinstance(exc, ResourceError):
         return exc
+    if type(exc).__name__ == "DecompressionBombError":  # Pillow's, from a path that skipped
+        return InputTooLargeError(f"image too large: {exc}")  # easyhoi.limits' header check
     if isinstance(exc, MemoryError):
         return ResourceError(f"out of memory ({exc or 'MemoryError'})")
     if isinstance(exc, OSError) and exc.errno in _RESOURCE_ERRNOS:
