@@ -491,3 +491,20 @@ def test_links_out_of_the_output_folder_are_refused(tmp_path, capsys):
     assert target.read_text() == "keep" and (elsewhere / "precious").read_text() == "keep"
     assert sorted(p.name for p in elsewhere.iterdir()) == ["precious", "victim.txt"]
     assert _leftovers(out) == []
+
+
+@pytest.mark.slow
+def test_disk_full_during_a_real_reconstruction(shared_data, tmp_path, capsys, monkeypatch):
+    """The real pipeline and writers; the disk fills up after the third file of the folder."""
+    import easyhoi.io.atomic as atomic
+
+    photo = shared_data / "images" / "hort-can.png"
+    out = tmp_path / "out"
+    monkeypatch.setattr(atomic, "os", _FullDisk(allow=3))
+    rc = main(["reconstruct", str(photo), "--out", str(out), "-q",
+               "--set", "optim.camera.max_iters=10", "--set", "optim.contact.max_iters=10",
+               "--set", "optim.refine.max_iters=5"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 10 and "error: ResourceError: disk full (No space left on device" in err, err
+    assert "Traceback" not in err
+    assert not out.exists() or list(out.iterdir()) == []
