@@ -156,3 +156,40 @@ def test_resource_conditions_are_not_bugs(exc, code, text):
     assert (res is None) == (text is None)
     if res is not None:
         assert text in str(res) and res.exit_code == ExitCode.RESOURCE
+
+
+def test_mesh_face_count_read_before_parsing(tmp_path, monkeypatch):
+    import trimesh
+
+    import easyhoi.perception.importers as imp
+
+    ball = trimesh.creation.icosphere(subdivisions=2)  # 320 faces
+    for ext in ("ply", "obj", "stl", "off"):
+        path = tmp_path / f"ball.{ext}"
+        ball.export(path)
+        assert limits.declared_face_count(path) == 320, ext
+    (tmp_path / "crlf.obj").write_bytes(b"f 1 2 3\r\nv 0 0 0\r\nf\t1 2 3\r\n# f 9\r\nvf 1\r\n")
+    assert limits.declared_face_count(tmp_path / "crlf.obj") == 2
+    monkeypatch.setattr(imp, "MAX_OBJECT_FACES", 319)
+
+    def never(path):
+        raise AssertionError("parsed a mesh over the limit")
+
+    monkeypatch.setattr("easyhoi.geometry.mesh.load_mesh", never)
+    for ext in ("ply", "obj", "stl", "off"):
+        with pytest.raises(InputTooLargeError, match="320 faces; at most 319") as info:
+            imp.load_object_mesh(tmp_path / f"ball.{ext}")
+        assert exit_code_of(info.value) == ExitCode.RESOURCE
+
+
+def test_oversized_pickle_is_exit_10(tmp_path, monkeypatch):
+    import pickle
+
+    import easyhoi.hand.safe_pickle as sp
+
+    path = tmp_path / "big.pkl"
+    path.write_bytes(pickle.dumps(list(range(100))))
+    monkeypatch.setattr(sp, "MAX_PICKLE_BYTES", 10)
+    with pytest.raises(InputTooLargeError, match="larger than") as info:
+        sp.load_mano_pickle(path)
+    assert exit_code_of(info.value) == 10

@@ -28,6 +28,7 @@ __all__ = [
     "MIN_FREE_BYTES",
     "check_image_header",
     "check_output_folder",
+    "declared_face_count",
     "image_size_error",
 ]
 
@@ -148,3 +149,41 @@ def check_output_folder(out: str | os.PathLike, what: str = "--out") -> Path:
             f"at least {MIN_FREE_BYTES // 2**20} MiB are needed"
         )
     return out
+
+
+def declared_face_count(path: str | os.PathLike) -> int | None:
+    """A mesh file's face count read without parsing the mesh, or None when it cannot be told.
+
+    PLY and OFF declare it in their header, a binary STL at byte 80; an OBJ's ``f`` lines are
+    counted in one pass over the bytes (about 0.1 s per 100 MB). Lets a mesh with millions of
+    faces be refused before a parser spends minutes and gigabytes on it.
+    """
+    p = Path(path)
+    ext = p.suffix.lower()
+    try:
+        with open(p, "rb") as f:
+            if ext == ".ply":
+                head = f.read(4096).split(b"end_header", 1)[0]
+                m = re.search(rb"element\s+face\s+(\d+)", head)
+                return int(m.group(1)) if m else None
+            if ext == ".off":
+                for line in f.read(4096).splitlines()[:8]:
+                    parts = line.split(b"#", 1)[0].split()
+                    if len(parts) == 3 and all(x.isdigit() for x in parts):
+                        return int(parts[1])
+                return None
+            if ext == ".stl":
+                head = f.read(84)
+                if len(head) == 84 and not head.lstrip().lower().startswith(b"solid"):
+                    return int.from_bytes(head[80:84], "little")
+                return None
+            if ext == ".obj":
+                count, tail = 0, b"\n"
+                while chunk := f.read(1 << 24):
+                    data = tail + chunk
+                    count += data.count(b"\nf ") + data.count(b"\nf\t")
+                    tail = data[-2:]  # a match across the boundary starts in these 2 bytes
+                return count
+    except OSError:
+        return None
+    return None
