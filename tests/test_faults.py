@@ -508,3 +508,39 @@ def test_disk_full_during_a_real_reconstruction(shared_data, tmp_path, capsys, m
     assert rc == 10 and "error: ResourceError: disk full (No space left on device" in err, err
     assert "Traceback" not in err
     assert not out.exists() or list(out.iterdir()) == []
+
+
+def test_reconstruct_replaces_a_link_in_out_without_touching_its_target(tmp_path, capsys,
+                                                                        monkeypatch):  # fmt: skip
+    import easyhoi.io.atomic as atomic
+    import easyhoi.pipeline as pipeline
+
+    def reconstruct_photo(image, folder, settings, **kw):
+        atomic.publish_folder(folder, lambda tmp: (tmp / "r.json").write_text("{}"), ["r.json"])
+        return SimpleNamespace(files=[], seconds=0.0, perception={})
+
+    monkeypatch.setattr(pipeline, "reconstruct_photo", reconstruct_photo)
+    (photo,) = _photos(tmp_path / "in", 1)
+    out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "precious").write_text("keep")
+    out.mkdir()
+    os.symlink(elsewhere, out / photo.stem)
+    assert main(["reconstruct", str(photo), "--out", str(out), "-q"]) == 0
+    assert not (out / photo.stem).is_symlink() and (out / photo.stem / "r.json").is_file()
+    assert sorted(p.name for p in elsewhere.iterdir()) == ["precious"]
+    assert sorted(p.name for p in out.iterdir()) == [photo.stem]
+
+
+def test_devices_and_fifos_named_as_photos_are_refused_at_once(tmp_path, capsys):
+    fifo = tmp_path / "fifo.jpg"
+    os.mkfifo(fifo)  # opening it for reading would block forever
+    zero = tmp_path / "zero.png"
+    os.symlink("/dev/zero", zero)  # reading it would never end
+    for photo in (fifo, zero):
+        rc = main(["reconstruct", str(photo), "--out", str(tmp_path / "out"), "-q"])
+        err = capsys.readouterr().err
+        assert rc == 2 and "error: InvalidInputError: image path is not a file" in err, err
+    from easyhoi.batch import discover_images
+
+    assert discover_images(tmp_path) == []  # never taken as photos of a batch
