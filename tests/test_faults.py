@@ -544,3 +544,24 @@ def test_devices_and_fifos_named_as_photos_are_refused_at_once(tmp_path, capsys)
     from easyhoi.batch import discover_images
 
     assert discover_images(tmp_path) == []  # never taken as photos of a batch
+
+
+def test_lock_file_that_is_a_link_is_refused(tmp_path):
+    from easyhoi.errors import InvalidInputError
+
+    out = tmp_path / "out"
+    out.mkdir()
+    target = tmp_path / "victim"
+    target.write_text("keep")
+    os.symlink(target, out / LOCK_NAME)
+    with pytest.raises(InvalidInputError, match="is a symbolic link"):
+        OutputLock(out).acquire()
+    assert target.read_text() == "keep"
+    os.unlink(out / LOCK_NAME)
+    with OutputLock(out) as lock:  # and a held lock times out for a waiting second run
+        assert lock.held
+        t0 = time.monotonic()
+        with pytest.raises(OutputBusyError, match=f"pid {os.getpid()}"):
+            OutputLock(out, wait=True, poll=0.05, timeout=0.3).acquire()
+        assert time.monotonic() - t0 >= 0.3
+    assert not (out / LOCK_NAME).exists()
