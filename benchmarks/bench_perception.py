@@ -99,7 +99,7 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
 
     t0 = time.perf_counter()
     hands = detector.detect(rgb)
-    idx, seg, notes = segment_hands(rgb, hands, segmenter) if hands else (None, None, [])
+    idx, seg, notes, _ = segment_hands(rgb, hands, segmenter) if hands else (None, None, [], None)
     secs = time.perf_counter() - t0
     present = ref["object"] is not None
     out_obj = seg.object_mask if seg is not None else None
@@ -127,7 +127,7 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
     if with_point and present and hands:
         p = Prompts(object_points=(tuple(float(v) for v in ref["point"]),))
         t1 = time.perf_counter()
-        _, sp, _ = segment_hands(rgb, hands, segmenter, prompts=p)
+        _, sp, _, _ = segment_hands(rgb, hands, segmenter, prompts=p)
         row["seconds_point"] = time.perf_counter() - t1
         row["iou_point"] = iou(sp.object_mask if sp is not None else None, ref["object"])
     return row

@@ -232,20 +232,22 @@ def test_object_confidence_reads_the_cues():
 
 def test_segment_hands_picks_the_holding_hand_and_notes_the_other():
     disk = grasped_disk()
-    kp2 = KP + [0.0, -200.0]  # a second hand, off the top of the picture except its wrist
     kp2 = KP.copy()
-    kp2[:, 1] -= 0  # same pose, moved right where nothing is held
-    kp2[:, 0] += 100
+    kp2[:, 0] += 100  # a second hand in the same pose, on the right, holding nothing
     img = canvas()
     img[disk] = BLUE
     img[draw_skeleton((S, S), kp2, 13, palm=True)] = SKIN
     img, hand = finish(img)
     hands = [det(kp2, "left"), det(KP, "right")]
     seg_obj = ClassicalHOISegmenter(seed=0)
-    idx, seg, notes = segment_hands(img, hands, seg_obj)
+    idx, seg, notes, choice = segment_hands(img, hands, seg_obj)
     assert idx == 1 and seg.has_object and iou(seg.object_mask, disk & ~hand) > 0.6
+    if notes:  # the empty hand was reported, and the holding one used
+        assert notes == ["hand 0 (left) holds no object"] and choice == "first holding an object"
+    else:  # both produced an object: the more confident one won
+        assert choice == "most confident object"
     assert nearest_hand(hands, (210.0, 150.0)) == 0
     assert nearest_hand(hands, (88.0, 128.0)) == 1
-    i2, _, _ = segment_hands(img, hands, seg_obj, Prompts(hand_point=(120.0, 180.0)))
-    assert i2 == 1
+    i2, _, _, why = segment_hands(img, hands, seg_obj, Prompts(hand_point=(120.0, 180.0)))
+    assert i2 == 1 and why == "hand point"
     assert palm_length(KP) == pytest.approx(np.linalg.norm(KP[9] - KP[0]))

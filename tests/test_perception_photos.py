@@ -113,9 +113,9 @@ def test_held_object_matches_the_reference(results, name):
     if ref.shape != rgb.shape[:2]:
         pytest.skip("photo resampled by the loader")
     segmenter = ClassicalHOISegmenter()
-    _, seg, _ = segment_hands(rgb, res["hands"], segmenter)
+    _, seg, _, _ = segment_hands(rgb, res["hands"], segmenter)
     assert seg is not None and seg.has_object, name
     assert mask_iou(seg.object_mask, ref) >= 0.5, name
     assert not (seg.object_mask & seg.hand_mask).any()
-    _, seg1, _ = segment_hands(rgb, res["hands"], segmenter, Prompts(object_points=(point,)))
+    _, seg1, _, _ = segment_hands(rgb, res["hands"], segmenter, Prompts(object_points=(point,)))
     assert mask_iou(seg1.object_mask, ref) >= 0.5, name

@@ -364,7 +364,11 @@ class PerceptionConfig:
     object: str = "silhouette"
     """Object reconstructor giving the object mesh."""
     sam_dir: str | None = None
-    """Local folder of a SAM model (transformers format) for the "sam" amodal backend."""
+    """Local folder of a SAM model (transformers format) for the "sam" amodal backend and the
+    "grounded-sam" segmenter."""
+    detector_dir: str | None = None
+    """Local folder of an OWLv2 or Grounding DINO detector (transformers) for the
+    "grounded-sam" segmenter."""
     depth_dir: str | None = None
     """Local folder of a depth-estimation model (transformers) for the "depth" object backend."""
     diffusion_dir: str | None = None
@@ -584,7 +588,10 @@ def with_overrides(cfg, overrides: dict[str, Any]):
             names = ", ".join(f.name for f in fields(parent)) if is_dataclass(parent) else "none"
             raise InvalidInputError(f"unknown config field {path!r} (fields here: {names})")
         new = _coerce(value, _hints(type(parent))[leaf], path)
-        cfg = _set(cfg, parts, new)
+        try:
+            cfg = _set(cfg, parts, new)
+        except InvalidInputError as exc:  # the value check of the dataclass: name the key
+            raise InvalidInputError(f"{path}={value!r} refused: {exc}") from None
     return cfg
 
 

@@ -182,6 +182,7 @@ _BUILTIN_MODULES: list[str] = [
     "easyhoi.perception.amodal",
     "easyhoi.perception.objects",
     "easyhoi.perception.adapters.sam",
+    "easyhoi.perception.adapters.grounded_sam",
     "easyhoi.perception.adapters.depth",
     "easyhoi.perception.adapters.diffusion",
 ]

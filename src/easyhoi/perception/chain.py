@@ -4,8 +4,10 @@ Steps (each a pluggable backend, chosen by name in :class:`~easyhoi.config.Perce
 
 1. hand detection (keypoints) and keypoint fitting of the hand model;
 2. HOI segmentation: visible hand mask M_h, held-object mask M_o and their confidence. With
-   several hands, the hand whose object has the best confidence is used (a hand that holds no
-   object is noted in the report); prompts (object points / box, a hand point) steer it;
+   several hands, each is segmented (the others passed to the segmenter when it takes them) and
+   the hand whose object has the best confidence is used; a hand that holds no object is noted
+   in the report. Prompts pick the hand (a hand point, or the hand nearest the object prompt)
+   and steer the segmenter;
 3. hand removal by inpainting (hand mask dilated);
 4. amodal re-segmentation prompted by points in every part of M_o and a loose box -> M^_o
    (forced to contain M_o);
@@ -14,6 +16,8 @@ Steps (each a pluggable backend, chosen by name in :class:`~easyhoi.config.Perce
 
 from __future__ import annotations
 
+import functools
+import inspect
 import logging
 import time
 from collections.abc import Callable
@@ -42,6 +46,10 @@ class PerceptionReport:
     notes: list = field(default_factory=list)
     #: mask name ("hand", "object", "amodal") -> MaskConfidence (perception.confidence)
     confidence: dict = field(default_factory=dict)
+    #: index, in detection order, of the hand the result uses (None before one is chosen)
+    hand_index: int | None = None
+    #: how that hand was chosen: "first holding an object", "hand point" or "object prompt"
+    hand_choice: str | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -51,6 +59,8 @@ class PerceptionReport:
             "timings": dict(self.timings),
             "notes": list(self.notes),
             "confidence": {k: v.to_dict() for k, v in self.confidence.items()},
+            "hand_index": self.hand_index,
+            "hand_choice": self.hand_choice,
         }
 
     @property
@@ -97,8 +107,9 @@ def perceive(
         progress: Called with each step's name as it starts.
         seed: Replaces the run's seed when given.
         provided: Results of other tools that replace steps.
-        prompts: Points / a box on the held object and/or a point on the hand (validated
-            against the photo).
+        prompts: Pixels of ``image`` that steer the segmentation: a hand point picks the hand
+            nearest to it; object points and box reach the segmenter when its ``segment``
+            takes a ``prompts`` argument (:class:`InvalidInputError` when it does not).
 
     Raises:
         NoHandError: no hand in the photo.
@@ -117,8 +128,6 @@ def perceive(
     report = PerceptionReport()
     say = progress or (lambda _msg: None)
     H, W = image.shape[:2]
-    if prompts is not None:
-        prompts = prompts.check(W, H)
 
     def timed(name, fn, *a, **kw):
         say(name)
@@ -128,12 +137,15 @@ def perceive(
         return out
 
     pv = provided or Provided()
+    prompts = None if prompts is None or prompts.empty else prompts.check(W, H)
     for name in ("hand_mask", "object_mask", "amodal_mask"):
         m = getattr(pv, name)
         if m is not None and np.shape(m) != (H, W):
             h, w = np.shape(m)[:2]
             raise InvalidInputError(f"{name} is {h}x{w} but the image is {H}x{W} (height x width)")
     masks_given = pv.hand_mask is not None and pv.object_mask is not None
+    # the segmenter first: a missing model folder is reported before any work
+    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter, seed)
     if pv.hand is not None and masks_given:  # nothing left for the detector to do
         say("hand detection (provided)")
         side = pv.hand[0].side
@@ -144,24 +156,33 @@ def perceive(
     if not hands:
         raise NoHandError("no hand found in the photo")
     if masks_given:
-        chosen = hands[0]
+        order, report.hand_choice = prompted_hand_order(hands, None)
         seg = Segmentation(pv.hand_mask, pv.object_mask, bool(pv.object_mask.any()))
         if not seg.has_object:
-            raise NoObjectError("the provided object mask is empty")
+            raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
+        idx = order[0]
     else:
-        segmenter = _backend(pc, "segmenter", pc.segmenter, seed)
-        idx, seg, notes = segment_hands(image, hands, segmenter, prompts, timed)
+        idx, seg, notes, report.hand_choice = segment_hands(
+            image, hands, segmenter, prompts, timed, name=pc.segmenter
+        )
         report.notes.extend(notes)
         if seg is None:
+            if report.hand_choice is not None:
+                i = prompted_hand_order(hands, prompts)[0][0]
+                raise NoObjectError(
+                    f"the hand nearest the {report.hand_choice} (hand {i}, {hands[i].side}) "
+                    "holds no object"
+                )
             raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
-        chosen = hands[idx]
         if pv.hand_mask is not None or pv.object_mask is not None:
             hm = seg.hand_mask if pv.hand_mask is None else pv.hand_mask
             om = seg.object_mask if pv.object_mask is None else pv.object_mask
-            seg = Segmentation(hm, om, bool(om.any()), seg.candidates, seg.meta, seg.confidence)
-            if pv.object_mask is not None:
-                seg.confidence.pop("object", None)
+            conf = {k: v for k, v in seg.confidence.items()
+                    if getattr(pv, f"{k}_mask", None) is None}  # fmt: skip
+            seg = Segmentation(hm, om, bool(om.any()), seg.candidates, seg.meta, conf)
         report.confidence.update(seg.confidence)
+    chosen = hands[idx]
+    report.hand_index = idx
     report.side, report.has_object = chosen.side, True
 
     model = run.hand_model
@@ -217,24 +238,35 @@ def perceive(
     return inp, report
 
 
-def nearest_hand(hands: list[HandDetection], point: tuple[float, float]) -> int:
-    """Index of the hand whose skeleton (keypoints and the bones between them) is nearest to
-    ``point``."""
-    from easyhoi.perception.skin import BONES
+def nearest_hand(hands: list[HandDetection], point) -> int:
+    """Index of the hand whose keypoints come nearest to the pixel ``point`` (x, y)."""
+    p = np.asarray(point, float).reshape(1, 2)
+    dists = []
+    for hand in hands:
+        k = np.asarray(hand.keypoints2d, float).reshape(-1, 2)
+        dists.append(np.linalg.norm(k - p, axis=1).min() if len(k) else np.inf)
+    return int(np.argmin(dists))
 
-    p = np.asarray(point, dtype=np.float64)
-    best, best_d = 0, np.inf
-    for i, h in enumerate(hands):
-        kp = np.asarray(h.keypoints2d, dtype=np.float64)
-        if kp.shape != (21, 2):
-            continue
-        a, b = kp[[p0 for p0, _ in BONES]], kp[[p1 for _, p1 in BONES]]
-        ab = b - a
-        t = np.clip(((p - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-9), 0.0, 1.0)
-        d = float(np.linalg.norm(a + t[:, None] * ab - p, axis=1).min())
-        if d < best_d:
-            best, best_d = i, d
-    return best
+
+def prompted_hand_order(
+    hands: list[HandDetection], prompts: Prompts | None
+) -> tuple[list[int], str | None]:
+    """The hands to segment, in order, and why: (indices, "hand point" / "object prompt" / None).
+
+    A hand point picks the hand nearest to it; object prompts alone pick the hand nearest to
+    the object (the mean of its points, else the box centre): a held object lies at the hand
+    that holds it. Without prompts every hand is tried in detection order (reason None).
+    """
+    if prompts is not None and prompts.hand_point is not None:
+        return [nearest_hand(hands, prompts.hand_point)], "hand point"
+    if prompts is not None and prompts.has_object_prompt:
+        if prompts.object_points:
+            centre = np.mean(np.asarray(prompts.object_points, float), axis=0)
+        else:
+            x0, y0, x1, y1 = prompts.object_box
+            centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+        return [nearest_hand(hands, centre)], "object prompt"
+    return list(range(len(hands))), None
 
 
 def segment_hands(
@@ -243,53 +275,56 @@ def segment_hands(
     segmenter,
     prompts: Prompts | None = None,
     timed: Callable | None = None,
-) -> tuple[int | None, Segmentation | None, list[str]]:
+    name: str = "segmenter",
+) -> tuple[int | None, Segmentation | None, list[str], str | None]:
     """Segment the hand(s) and pick the one whose held object is most certain.
 
-    With ``prompts.hand_point`` only the hand nearest to it is segmented; with object prompts
-    alone, the hand nearest to the object points (or the box centre). Otherwise every hand
-    is segmented (the others passed as ``others`` so they are never part of the object), and
-    the hand with an object of the highest object confidence wins; each hand that holds no
-    object is named in the notes. Returns (hand index, segmentation, notes), or
-    (None, None, notes) when no hand holds an object.
-    """
-    import inspect
+    The hands come from :func:`prompted_hand_order` (one hand when a prompt picks it). Each is
+    segmented, with the other hands passed as ``others`` when the segmenter takes them (they are
+    never part of the object), and the hand holding an object of the highest object confidence
+    wins (the first on ties). Every hand that holds no object is named in the notes.
 
+    Returns:
+        (hand index, segmentation, notes, why the hand was chosen), or (None, None, notes,
+        reason) when no hand holds an object.
+    """
     run = timed or (lambda _name, fn, *a, **kw: fn(*a, **kw))
-    params = inspect.signature(segmenter.segment).parameters
-    order = list(range(len(hands)))
-    if prompts is not None and prompts.hand_point is not None:
-        order = [nearest_hand(hands, prompts.hand_point)]
-    elif prompts is not None and prompts.has_object_prompt:  # the hand nearest the object
-        if prompts.object_points:
-            centre = np.mean(np.asarray(prompts.object_points, dtype=np.float64), axis=0)
-        else:
-            x0, y0, x1, y1 = prompts.object_box
-            centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
-        order = [nearest_hand(hands, tuple(centre))]
+    segment = _prompted(segmenter, name, prompts)
+    order, choice = prompted_hand_order(hands, prompts)
+    takes_others = "others" in inspect.signature(segmenter.segment).parameters
     notes, results = [], []
     for i in order:
-        kw = {}
-        if "prompts" in params and prompts is not None and prompts.has_object_prompt:
-            kw["prompts"] = prompts
-        if "others" in params:
-            kw["others"] = [h for j, h in enumerate(hands) if j != i]
-        s = run(f"segmentation (hand {i})", segmenter.segment, image, hands[i], **kw)
+        kw = {"others": [h for j, h in enumerate(hands) if j != i]} if takes_others else {}
+        s = run(f"segmentation (hand {i})", segment, image, hands[i], **kw)
         if s.has_object:
             conf = s.confidence.get("object")
             results.append((conf.score if conf is not None else 0.0, -i, i, s))
         else:
             notes.append(f"hand {i} ({hands[i].side}) holds no object")
     if not results:
-        return None, None, notes
+        return None, None, notes, choice
     _, _, i, s = max(results, key=lambda r: (r[0], r[1]))
-    if notes:
-        notes.append(f"using hand {i} ({hands[i].side})")
-    return i, s, notes
+    if choice is None:
+        choice = "first holding an object" if len(results) == 1 else "most confident object"
+    return i, s, notes, choice
 
 
-#: Backends that load a large model from a local folder, and the config field naming it.
-_MODEL_DIR_FIELDS = {"sam": "sam_dir", "depth": "depth_dir", "diffusion": "diffusion_dir"}
+def _prompted(segmenter, name: str, prompts: Prompts | None):
+    """``segment(image, hand)`` of ``segmenter``, handing it the object prompts."""
+    if prompts is None or not prompts.has_object_prompt:
+        return segmenter.segment
+    if "prompts" not in inspect.signature(segmenter.segment).parameters:
+        raise InvalidInputError(
+            f"the segmenter {name!r} takes no object prompts; choose one that does "
+            "(see `easyhoi doctor`) or leave out --object-point/--object-box"
+        )
+    return functools.partial(segmenter.segment, prompts=prompts)
+
+
+#: Backends that load large models from local folders, and the config fields naming them.
+_MODEL_DIR_FIELDS = {"sam": ("sam_dir",), "depth": ("depth_dir",),
+                     "diffusion": ("diffusion_dir",),
+                     "grounded-sam": ("detector_dir", "sam_dir")}  # fmt: skip
 
 
 def backend_seed(seed: int) -> int:
@@ -303,9 +338,8 @@ def backend_seed(seed: int) -> int:
 
 def _backend(pc, role: str, name: str, seed: int = 0):
     """Create a backend: one that takes a ``seed`` gets :func:`backend_seed`, adapters of large
-    models get their local model folder from config."""
-    import inspect
-
+    models get their local model folders from config (one folder as ``model_dir``, several
+    each under its field's name)."""
     from easyhoi.perception.base import factory
 
     kwargs = {}
@@ -315,17 +349,21 @@ def _backend(pc, role: str, name: str, seed: int = 0):
         params = {}
     if "seed" in params:
         kwargs["seed"] = backend_seed(seed)
-    field_name = _MODEL_DIR_FIELDS.get(name)
-    if field_name is None:
+    fields = _MODEL_DIR_FIELDS.get(name)
+    if fields is None:
         return create(role, name, **kwargs)
-    model_dir = getattr(pc, field_name)
-    if not model_dir:
-        flag = "--" + field_name.replace("_", "-")
-        raise InvalidInputError(
-            f"the {role} backend {name!r} needs a local model folder: pass {flag} DIR "
-            f"(perception.{field_name}); nothing is downloaded"
-        )
-    return create(role, name, model_dir=model_dir, **kwargs)
+    dirs = {}
+    for field_name in fields:
+        dirs[field_name] = getattr(pc, field_name)
+        if not dirs[field_name]:
+            flag = "--" + field_name.replace("_", "-")
+            raise InvalidInputError(
+                f"the {role} backend {name!r} needs a local model folder: pass {flag} DIR "
+                f"(perception.{field_name}); nothing is downloaded"
+            )
+    if len(fields) == 1:
+        return create(role, name, model_dir=dirs[fields[0]], **kwargs)
+    return create(role, name, **dirs, **kwargs)
 
 
 def _jsonable(v) -> bool:
