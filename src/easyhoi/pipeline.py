@@ -62,7 +62,9 @@ def reconstruct_photo(
     else:
         run = resolve_run(settings, seed=seed)
     inp, report = perceive(image.rgb, run, progress=say, provided=provided)
-    result = optimize(inp, run.config.optim, hand_model=run.hand_model, progress=progress)
+    result = optimize(
+        inp, run.config.optim, hand_model=run.hand_model, progress=progress, device=run.device
+    )
     files = []
     if folder is not None:
         from easyhoi.result_folder import write_result_folder

@@ -252,7 +252,7 @@ class _SoftLogSumNumba(torch.autograd.Function):
                 num_pix: int):  # fmt: skip
         tri = tri_uv.detach().reshape(-1, 6).contiguous()
         base = base.contiguous()
-        out = torch.empty(num_pix, dtype=tri.dtype)
+        out = torch.empty(num_pix, dtype=tri.dtype, device=tri.device)
         args = (tri.numpy(), base.numpy(), height, width, 1.0 / sigma, margin, num_pix)
         if not numba_call("soft_logsum_forward", *args, out.numpy()):
             raise _KernelUnavailable
