@@ -651,6 +651,18 @@ class ReconstructWorker:
     def __init__(self, settings=None):
         self.settings = settings
 
+    @property
+    def device(self) -> str:
+        """The device the photos run on ("cpu", "cuda", ...; Ray asks for GPUs by it)."""
+        from easyhoi.config import get_preset
+        from easyhoi.device import resolve_device
+        from easyhoi.settings import RunSettings
+
+        if isinstance(self.settings, RunSettings):
+            return self.settings.device
+        cfg = get_preset() if self.settings is None else self.settings
+        return resolve_device(cfg.device)
+
     def __call__(self, task: Task) -> dict:
         """Reconstruct one photo into ``task.output``; returns timing and file count."""
         from easyhoi.pipeline import reconstruct_photo
