@@ -192,3 +192,66 @@ def test_same_input_and_seed_same_result_on_another_device(tiny, hand, cpu_resul
         soft.set_backend("auto")
     assert out.camera.K.device.type == "cpu"  # results come back on the CPU
     _assert_same_result(out, ref, extent)
+
+
+class _FakeRay:
+    """The part of the Ray API the executor uses; records the resources tasks ask for."""
+
+    class exceptions:  # noqa: N801 - mirrors ray.exceptions
+        class RayError(Exception):
+            pass
+
+        class WorkerCrashedError(RayError):
+            pass
+
+    def __init__(self, gpus: float):
+        self.gpus, self.asked, self.refs = gpus, None, {}
+
+    def is_initialized(self):
+        return True  # an existing session: the executor neither starts nor stops it
+
+    def cluster_resources(self):
+        return {"CPU": 4.0, "GPU": self.gpus} if self.gpus else {"CPU": 4.0}
+
+    def remote(self, **resources):
+        self.asked = resources
+
+        def submit(worker, task, threads):
+            ref = len(self.refs)
+            self.refs[ref] = task
+            return ref
+
+        return lambda fn: type("Remote", (), {"remote": staticmethod(submit)})
+
+    def put(self, obj):
+        return obj
+
+    def wait(self, waiting, num_returns=1):
+        return waiting[:num_returns], waiting[num_returns:]
+
+    def get(self, ref):
+        from easyhoi.distributed import TaskResult
+
+        return TaskResult(self.refs[ref].key, "ok", 0.0)
+
+
+class _Worker:
+    def __init__(self, device):
+        self.device = device
+
+    def __call__(self, task):
+        return None
+
+
+@pytest.mark.parametrize(("device", "gpus", "share"), [("cuda", 1, 0.5), ("cuda:0", 4, 1.0),
+                                                       ("cpu", 1, 0)])  # fmt: skip
+def test_ray_tasks_ask_for_a_gpu_share_on_cuda(device, gpus, share):
+    from easyhoi.distributed import Task, _iter_ray
+
+    ray = _FakeRay(gpus)
+    tasks = [Task(f"p{i}.png", f"p{i}.png", f"out/p{i}", i) for i in range(3)]
+    done = list(_iter_ray(ray, tasks, _Worker(device), 2, 1, None))
+    assert sorted(r.key for r in done) == ["p0.png", "p1.png", "p2.png"]
+    assert ray.asked == {"num_cpus": 1, "num_gpus": share, "max_retries": 1}
+    with pytest.raises(InvalidInputError, match="no GPU"):
+        list(_iter_ray(_FakeRay(0), tasks, _Worker("cuda"), 2, 1, None))
