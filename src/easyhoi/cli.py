@@ -11,7 +11,13 @@ import sys
 from pathlib import Path
 
 from easyhoi import __version__
-from easyhoi.errors import EXIT_CODE_MEANINGS, EasyHOIError, ExitCode, InvalidInputError
+from easyhoi.errors import (
+    EXIT_CODE_MEANINGS,
+    EasyHOIError,
+    ExitCode,
+    InvalidInputError,
+    as_resource_error,
+)
 
 logger = logging.getLogger("easyhoi")
 
@@ -139,6 +145,7 @@ def cmd_batch(args) -> int:
     from easyhoi.batch import discover_images
 
     folder = Path(args.folder)
+    _check_out_dir(Path(args.out))
     images = discover_images(folder, recursive=args.recursive, exclude=[args.out])
     if not images:
         hint = "" if args.recursive else " (add --recursive to include subfolders)"
@@ -182,7 +189,7 @@ def _run_batch(args, images: list[Path], root: Path | None, run, prompts=None) -
             images, args.out, worker, engine=getattr(args, "engine", "inline"),
             workers=getattr(args, "workers", 1), resume=getattr(args, "resume", False),
             seed=run.seed, ray_address=getattr(args, "ray_address", None),
-            progress=progress, root=root,
+            progress=progress, root=root, wait=getattr(args, "wait", False),
         )  # fmt: skip
     finally:
         bar.close()
@@ -368,15 +375,9 @@ def _tell_perception(args, image, perception: dict, prompts=None) -> None:
 
 def _check_out_dir(out: Path) -> None:
     """Refuse an output folder that can never be written before any work is done."""
-    import os
+    from easyhoi.limits import check_output_folder
 
-    p = out
-    while not p.exists() and p != p.parent:
-        p = p.parent
-    if not p.is_dir():
-        raise InvalidInputError(f"cannot write to --out {out}: {p} exists and is not a folder")
-    if not os.access(p, os.W_OK | os.X_OK):
-        raise InvalidInputError(f"cannot write to --out {out}: no write permission on {p}")
+    check_output_folder(out)
 
 
 def _provided_from_args(args):
@@ -578,6 +579,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "hand_point}} or CSV photo,kind,x,y[,x1,y1]")  # fmt: skip
     p.add_argument("--strict", action="store_true",
                    help="a photo with a low-confidence mask fails (exit 9)")  # fmt: skip
+    p.add_argument("--wait", action="store_true",
+                   help="if another run uses --out, wait for it (default: exit 11)")  # fmt: skip
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
     p.add_argument("--seed", type=int, default=None, help=_SEED_HELP)
     _add_model_options(p)
@@ -679,6 +682,9 @@ def main(argv: list[str] | None = None) -> int:
         _err("interrupted")
         return int(ExitCode.INTERRUPTED)
     except Exception as exc:  # noqa: BLE001 - last line of defence: no traceback for users
+        if (res := as_resource_error(exc)) is not None:  # disk full, out of memory
+            _err(f"error: {type(res).__name__}: {res}")
+            return int(res.exit_code)
         if args.verbose:
             logger.exception("internal error")
         _err(f"internal error: {type(exc).__name__}: {exc} (rerun with --verbose for details)")

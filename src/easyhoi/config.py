@@ -593,7 +593,10 @@ def with_overrides(cfg, overrides: dict[str, Any]):
             names = ", ".join(f.name for f in fields(parent)) if is_dataclass(parent) else "none"
             raise InvalidInputError(f"unknown config field {path!r} (fields here: {names})")
         new = _coerce(value, _hints(type(parent))[leaf], path)
-        cfg = _set(cfg, parts, new)
+        try:
+            cfg = _set(cfg, parts, new)
+        except InvalidInputError as exc:  # the value check of the dataclass: name the key
+            raise InvalidInputError(f"{path}={value!r} refused: {exc}") from None
     return cfg
 
 

@@ -52,6 +52,7 @@ from easyhoi.errors import (
     ExitCode,
     InvalidInputError,
     MissingDependencyError,
+    as_resource_error,
 )
 
 __all__ = [
@@ -175,6 +176,7 @@ def _uses_gpu(worker) -> bool:
 
 
 def _failure(key: str, exc: BaseException, seconds: float) -> TaskResult:
+    exc = as_resource_error(exc) or exc  # a full disk or no memory is not a bug
     if isinstance(exc, EasyHOIError):
         return TaskResult(key, "failed", seconds, type(exc).__name__, str(exc), exc.exit_code)
     return TaskResult(
@@ -290,8 +292,17 @@ def _new_pool(workers: int, threads: int, mp_context: str) -> ProcessPoolExecuto
         # imported once by the fork server (only applies when it starts)
         ctx.set_forkserver_preload(["easyhoi.distributed"])
     return ProcessPoolExecutor(
-        max_workers=workers, mp_context=ctx, initializer=_set_threads, initargs=(threads,)
-    )
+        max_workers=workers, mp_context=ctx, initializer=_init_worker,
+        initargs=(threads, os.getpid()),
+    )  # fmt: skip
+
+
+def _init_worker(threads: int | None, batch_pid: int) -> None:
+    """Worker start: end with the batch process (see :mod:`easyhoi.process_guard`), threads."""
+    from easyhoi.process_guard import die_with
+
+    die_with(batch_pid)
+    _set_threads(threads)
 
 
 def _iter_local(
