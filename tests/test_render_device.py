@@ -16,7 +16,7 @@ import pytest
 import torch
 import trimesh
 
-from easyhoi.render import depth_map, peel, peel_pixels, soft, soft_silhouette
+from easyhoi.render import depth_map, hoi_masks, peel, peel_pixels, soft, soft_silhouette
 from easyhoi.structures import Camera
 from tests.helpers import assert_close
 
@@ -92,6 +92,29 @@ def test_depth_peeling_on_device_matches_cpu(device):
     assert_close(b.points.cpu(), a.points, atol=1e-5)
 
 
+def _hoi(backend: str, device: str):
+    v, f, cam = _mesh()
+    dev = torch.device(device)
+    hand = v * 0.4 + torch.tensor([0.5, 0.2, -1.0])  # a smaller sphere in front, off centre
+    soft.set_backend(backend)
+    try:
+        return hoi_masks(hand.to(dev), f.to(dev), v.to(dev), f.to(dev), cam.to(device=dev),
+                         sigma=0.5)  # fmt: skip
+    finally:
+        soft.set_backend("auto")
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_occlusion_aware_masks_on_device_match_cpu_numba(device):
+    pytest.importorskip("easyhoi.render._numba_kernels")
+    ref, out = _hoi("numba", "cpu"), _hoi("torch", device)
+    assert out.hand_visible.device.type == torch.device(device).type
+    hidden = (ref.object > 0.5) & (ref.object_visible < 0.5)
+    assert int(hidden.sum()) > 50  # the hand hides part of the object
+    for name in ("hand", "object", "hand_visible", "object_visible"):
+        assert_close(getattr(out, name), getattr(ref, name), atol=SIL_ATOL, msg=name)
+
+
 def test_torch_kernels_create_every_tensor_on_the_inputs_device():
     v, f, cam = _mesh(48)
     uv = torch.tensor([[20.5, 18.5], [30.0, 10.0]])
@@ -104,9 +127,10 @@ def test_torch_kernels_create_every_tensor_on_the_inputs_device():
         z = depth_map(v, f, cam)
         frags = peel(v, f, cam, num_layers=2)
         pts = peel_pixels(v, f, cam, uv, num_layers=2)
+        masks = hoi_masks(v * 0.4 + torch.tensor([0.5, 0.2, -1.0], device="cpu"), f, v, f, cam)
     finally:
         torch.set_default_device(None)
         soft.set_backend("auto")
-    for t in (sil, vv.grad, z, frags.depth, pts.points):
+    for t in (sil, vv.grad, z, frags.depth, pts.points, masks.hand_visible):
         assert t.device.type == "cpu"
     assert float(sil.detach().max()) > 0.99 and np.isfinite(float(vv.grad.abs().sum()))
