@@ -255,3 +255,12 @@ def test_ray_tasks_ask_for_a_gpu_share_on_cuda(device, gpus, share):
     assert ray.asked == {"num_cpus": 1, "num_gpus": share, "max_retries": 1}
     with pytest.raises(InvalidInputError, match="no GPU"):
         list(_iter_ray(_FakeRay(0), tasks, _Worker("cuda"), 2, 1, None))
+
+
+def test_hand_model_on_another_device_is_a_moved_copy(hand):
+    assert hand.on_device("cpu") is hand
+    moved = hand.on_device("meta")  # a device every torch build has
+    assert moved is not hand and moved.faces.device.type == "meta"
+    assert moved.regions.contact_vertices.device.type == "meta"
+    assert hand.faces.device.type == "cpu" and hand.regions.vertex_part.device.type == "cpu"
+    assert moved.faces.shape == hand.faces.shape
