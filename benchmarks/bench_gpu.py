@@ -12,7 +12,8 @@ none; the script runs the same either way):
    context and kernel loading).
 2. **Renderer**: forward + backward of a loss on the soft silhouette of a ~5k-face sphere, the
    z-buffer and 4-layer depth peeling, at 256 / 512 / 1024 px (median of ``--repeat`` runs):
-   CPU numba, CPU torch and CUDA torch (with ``torch.cuda.synchronize``).
+   CPU numba, CPU torch and CUDA torch (with ``torch.cuda.synchronize``); ``--compile`` adds
+   the ``torch.compile`` kernels on each device (whether they pay on a GPU is open).
 3. **Adapters**: one call of each large-model adapter (SAM amodal completion, depth-to-mesh,
    diffusion inpainting) built with a tiny random-weight model (transformers / diffusers
    configurations, nothing downloaded), on each device: the adapters' own overhead and data
@@ -152,11 +153,13 @@ def _time(fn, device: str, repeat: int) -> float:
     return statistics.median(times)
 
 
-def bench_renderer(sizes, repeat: int) -> list[dict]:
+def bench_renderer(sizes, repeat: int, compile_: bool = False) -> list[dict]:
     from easyhoi.render import depth_map, peel, soft, soft_silhouette
 
     configs = [("cpu", "numba"), ("cpu", "torch")]
     configs += [("cuda", "torch")] if torch.cuda.is_available() else []
+    if compile_:  # torch.compile of the soft kernels (dynamic shapes); compiled once, untimed
+        configs += [(device, "compile") for device, _ in configs if _ == "torch"]
     rows = []
     for size in sizes:
         v0, f0, cam0 = _render_scene(size)
@@ -187,10 +190,12 @@ def bench_renderer(sizes, repeat: int) -> list[dict]:
 
 def _render_line(row: dict) -> str:
     parts = []
+    names = [k for k in row if k != "size"]
+    names += [] if "cuda-torch" in names else ["cuda-torch"]
     for key in ("soft_fwd_bwd", "zbuffer", "peel4"):
-        cols = [_fmt(row.get(c, {}).get(key), 4) for c in ("cpu-numba", "cpu-torch", "cuda-torch")]
+        cols = [_fmt(row.get(c, {}).get(key), 4) for c in names]
         parts.append(f"{key} " + "/".join(cols))
-    return f"{row['size']:>5} px  cpu-numba/cpu-torch/cuda-torch s: " + " | ".join(parts)
+    return f"{row['size']:>5} px  {'/'.join(names)} s: " + " | ".join(parts)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -321,6 +326,11 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=5, help="renderer/adapter runs (median)")
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     ap.add_argument("--no-adapters", action="store_true", help="skip the adapter table")
+    ap.add_argument(
+        "--compile",
+        action="store_true",
+        help="also time the renderer's torch.compile kernels (compiles first)",
+    )
     ap.add_argument("--quick", action="store_true",
                     help="1 scene at 96 px, paper capped at 20 iterations, 256 px renders, "
                          "2 repeats, no adapters (checks that the script runs)")  # fmt: skip
@@ -345,7 +355,9 @@ def main(argv=None) -> int:
         "gpu": gpu,
         "args": vars(args),
         "optimizer": bench_optimizer(_scenes(args.scenes, args.size), presets, devices),
-        "renderer": bench_renderer([int(s) for s in args.sizes.split(",")], args.repeat),
+        "renderer": bench_renderer(
+            [int(s) for s in args.sizes.split(",")], args.repeat, args.compile
+        ),
         "adapters": [] if args.no_adapters else bench_adapters(args.repeat),
     }
     out = Path(args.out)
