@@ -208,7 +208,7 @@ class _FakeRay:
         self.gpus, self.asked, self.refs = gpus, None, {}
 
     def is_initialized(self):
-        return True  # an existing session: the executor neither starts nor stops it
+        return True  # Ray already running: the executor neither starts nor stops it
 
     def cluster_resources(self):
         return {"CPU": 4.0, "GPU": self.gpus} if self.gpus else {"CPU": 4.0}
