@@ -713,6 +713,18 @@ class ReconstructWorker:
         self.prompts = dict(prompts or {})
         self.strict = bool(strict)
 
+    @property
+    def device(self) -> str:
+        """The device the photos run on ("cpu", "cuda", ...; Ray asks for GPUs by it)."""
+        from easyhoi.config import get_preset
+        from easyhoi.device import resolve_device
+        from easyhoi.settings import RunSettings
+
+        if isinstance(self.settings, RunSettings):
+            return self.settings.device
+        cfg = get_preset() if self.settings is None else self.settings
+        return resolve_device(cfg.device)
+
     def __call__(self, task: Task) -> dict:
         """Reconstruct one photo into ``task.output``.
 

@@ -314,6 +314,8 @@ def _config_from_args(args):
 
     cfg = get_preset(args.preset)
     cfg = replace(cfg, hand_model=args.hand_model, mano_dir=args.mano_dir)
+    if getattr(args, "device", None):
+        cfg = replace(cfg, device=args.device)
     perception = {
         "hand": args.hand_backend, "segmenter": args.segmenter, "inpainter": args.inpainter,
         "amodal": args.amodal, "object": args.object_backend,
@@ -478,6 +480,12 @@ def _add_model_options(p: argparse.ArgumentParser) -> None:
                    help="folder or path of MANO_RIGHT.pkl (or set EASYHOI_MANO_DIR)")  # fmt: skip
 
 
+def _add_device_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--device", default=None, metavar="{auto,cpu,cuda,cuda:N}",
+                   help="where the optimizer and large models run (default: config 'device', "
+                        "auto = cuda when torch sees a GPU)")  # fmt: skip
+
+
 def _set_torch_threads() -> None:
     """One torch thread unless EASYHOI_TORCH_THREADS says otherwise.
 
@@ -529,6 +537,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
     p.add_argument("--seed", type=int, default=None, help=_SEED_HELP)
     _add_model_options(p)
+    _add_device_option(p)
     for flag, role in (("--hand-backend", "hand"), ("--segmenter", "segmenter"),
                        ("--inpainter", "inpainter"), ("--amodal", "amodal"),
                        ("--object-backend", "object")):  # fmt: skip
@@ -575,6 +584,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
     p.add_argument("--seed", type=int, default=None, help=_SEED_HELP)
     _add_model_options(p)
+    _add_device_option(p)
     for flag, role in (("--hand-backend", "hand"), ("--segmenter", "segmenter"),
                        ("--inpainter", "inpainter"), ("--amodal", "amodal"),
                        ("--object-backend", "object")):  # fmt: skip
@@ -592,6 +602,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="config override")
     _add_model_options(p)
+    _add_device_option(p)
     for flag in ("--hand-backend", "--segmenter", "--inpainter", "--amodal", "--object-backend"):
         p.add_argument(flag, default=None, help=argparse.SUPPRESS)
     _add_common(p)
