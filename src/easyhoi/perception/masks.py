@@ -160,9 +160,10 @@ class ClassicalHOISegmenter:
             if prompts.object_box is not None:
                 bx0, by0, bx1, by1 = prompts.object_box
                 pts += [(bx0, by0), (bx1, by1)]
-            if pts:  # the prompted object and a margin of a quarter hand around it
+            if pts:  # the prompted object and a margin around it: a clicked object may reach
+                # a few palm lengths from the click
                 p = np.asarray(pts, dtype=np.float64)
-                m = 0.25 * side
+                m = max(0.25 * side, 3.0 * palm_length(kp))
                 x0, y0 = min(x0, p[:, 0].min() - m), min(y0, p[:, 1].min() - m)
                 x1, y1 = max(x1, p[:, 0].max() + m), max(y1, p[:, 1].max() + m)
         x0, y0 = int(max(0, x0)), int(max(0, y0))

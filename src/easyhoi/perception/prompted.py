@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from easyhoi.perception import held_object as ho
+from easyhoi.perception.click import click_object
 from easyhoi.perception.proposals import Proposals
 from easyhoi.perception.skin import fill_holes
 
@@ -90,6 +91,8 @@ def prompted_object(
         boxmask = np.zeros(shape, bool)
         boxmask[max(0, v0) : max(0, v1), max(0, u0) : max(0, u1)] = True
     if not props.regions:
+        if boxmask is None:
+            return click_object(img, scene, pts, [], iterations, seed)[0], None, None
         return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None
     cues = ho.describe(props, scene)
     n = len(props.regions)
@@ -109,6 +112,8 @@ def prompted_object(
             fit[i] = (a_in / max(size, 1.0)) * (a_in / box_area)
         ok &= fit > 0.05
     if not ok.any():
+        if boxmask is None:
+            return click_object(img, scene, pts, [], iterations, seed)[0], None, None
         return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None
     exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     codes = ho.colour_codes(scene.lab)
@@ -124,6 +129,11 @@ def prompted_object(
     s = prompt_score(cues) + 4.0 * fit
     s = np.where(np.isin(np.arange(n), cand), s, -np.inf)
     hyp = ho.Hypotheses(props, cues, s)
+    if boxmask is None:  # clicks only: GrabCut grown from the clicks, proposals as fallback
+        top = ho.distinct_best(hyp, 2)
+        fb = [(props.mask(props.regions[i]) | sure) & ~forbidden for i in top]
+        obj = click_object(img, scene, pts, fb, iterations, seed)[0]
+        return obj, hyp, (top[0] if top else None)
     if boxmask is not None:
         forbidden = forbidden | ~boxmask
     # the proposals break textured objects into parts: each of the best distinct levels seeds

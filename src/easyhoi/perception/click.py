@@ -1,0 +1,197 @@
+"""One-click held-object segmentation: GrabCut grown from the user's point.
+
+A click says where the object is, not how far it extends, and the region proposals often do not
+contain the object as one region (a textured or multi-coloured object, a thin one). So the click
+seeds GrabCut directly, in several working windows around it:
+
+* a small disk around the click is sure object, a larger disk probable object, the rest of the
+  window probable background, the hands and everything beyond a margin around the window sure
+  background (GrabCut learns the background colours there);
+* the window sizes are multiples of the hand's palm length L (a held object is from a fraction
+  of a hand to a few hands across), so nothing depends on the photo's resolution;
+* each result (the component containing the click, holes filled, hands removed) is scored by
+  cues that hold for objects in photos in general (:func:`click_score`), together with the best
+  region proposal containing the click (the fallback when GrabCut collapses), and the best one
+  is kept.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from easyhoi.perception import held_object as ho
+from easyhoi.perception.skin import SKIN_D2, fill_holes, grabcut
+
+#: Working windows: half-sides in palm lengths. From a small object next to the fingers to one
+#: a few hands across.
+WINDOWS = (0.6, 1.0, 1.6, 2.5)
+#: Radii of the probable-object disk, as shares of the window's half-side (1.5: the whole
+#: window, the classic GrabCut box).
+SEED_SHARES = (0.35, 1.5)
+#: Radius of the sure-object disk around the click, in palm lengths.
+SURE = 0.06
+#: Score weights of :func:`click_score`.
+CLICK_WEIGHTS = {
+    "contrast": 1.5,
+    "edge": 1.5,
+    "solidity": 0.5,
+    "depth": 3.0,
+    "window": -2.5,
+    "skin": -0.5,
+    "size": -1.0,
+    "log_area": 0.4,
+}
+#: Object area range, x hand area, outside which the size penalty grows with the log-ratio.
+CLICK_AREA = (0.02, 4.0)
+
+
+def _disk(shape, p, r) -> np.ndarray:
+    out = np.zeros(shape, np.uint8)
+    cv2.circle(out, (int(round(p[0])), int(round(p[1]))), max(1, int(round(r))), 1, -1)
+    return out.astype(bool)
+
+
+def _component_at(mask: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    n, cc = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    keep = np.unique(cc[seed & mask])
+    return np.isin(cc, keep[keep > 0])
+
+
+def edge_strength(mask: np.ndarray, grad: np.ndarray, exclude: np.ndarray) -> float:
+    """Mean image gradient along the mask's outline (off ``exclude``), relative to the mean
+    gradient of the whole working crop, squashed to [0, 1): an object's outline is an edge of
+    the photo, a cut through a uniform region is not."""
+    er = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    line = mask & ~er & ~exclude
+    if line.sum() < 4:
+        return 0.0
+    rel = float(grad[line].mean()) / max(1e-6, float(grad.mean()))
+    return rel / (1.0 + rel)
+
+
+def click_score(c: dict[str, float]) -> float:
+    """Score of a one-click candidate from its cues (higher: more likely the whole object)."""
+    w = CLICK_WEIGHTS
+    lo, hi = CLICK_AREA
+    a = max(c["area"], 1e-6)
+    return (
+        w["contrast"] * c["contrast"]
+        + w["edge"] * c["edge"]
+        + w["solidity"] * c["solidity"]
+        + w["depth"] * c["depth"]
+        + w["window"] * c["window"]
+        + w["skin"] * c["skin"]
+        + w["size"] * abs(np.log(a / np.clip(a, lo, hi)))
+        + w["log_area"] * np.log(a)
+    )
+
+
+def candidate_cues(
+    m: np.ndarray,
+    p: np.ndarray,
+    window: np.ndarray | None,
+    scene: ho.Scene,
+    exclude: np.ndarray,
+    codes: np.ndarray,
+    grad: np.ndarray,
+) -> dict[str, float]:
+    """Cues of one candidate mask ``m`` for the click ``p``; ``window`` the GrabCut window."""
+    L = scene.palm
+    h, w = m.shape
+    dt = cv2.distanceTransform(np.pad(m, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    u, v = int(round(p[0])), int(round(p[1]))
+    depth = float(dt[v, u]) / max(1.0, float(dt.max()))
+    win = 0.0
+    if window is not None:  # share of the window's inner outline the mask runs into
+        ring = window & ~cv2.erode(window.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        frame = np.zeros((h, w), bool)
+        frame[[0, -1], :], frame[:, [0, -1]] = True, True
+        ring &= ~frame  # the photo's edge is not the window's: the object may leave the photo
+        win = float((ring & m).sum()) / max(1.0, float(ring.sum()))
+    return {
+        "contrast": ho.outline_contrast(m, exclude, codes, max(3, int(0.2 * L))),
+        "edge": edge_strength(m, grad, exclude),
+        "solidity": ho.solidity(m),
+        "depth": depth,
+        "window": win,
+        "skin": float((scene.skin_d2[m] < SKIN_D2).mean()),
+        "area": float(m.sum()) / scene.hand_area,
+    }
+
+
+def click_candidates(
+    img: np.ndarray,
+    scene: ho.Scene,
+    p: np.ndarray,
+    forbidden: np.ndarray,
+    iterations: int,
+    seed: int,
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(mask, window) GrabCut candidates grown from the click ``p`` (u, v) in crop pixels."""
+    h, w = img.shape[:2]
+    L = scene.palm
+    sure = _disk((h, w), p, max(1.5, SURE * L)) & ~scene.other_hands
+    out = []
+    for k, share in [(k, sh) for k in WINDOWS for sh in SEED_SHARES]:
+        R = k * L
+        u0, v0 = int(max(0, p[0] - R)), int(max(0, p[1] - R))
+        u1, v1 = int(min(w, p[0] + R + 1)), int(min(h, p[1] + R + 1))
+        window = np.zeros((h, w), bool)
+        window[v0:v1, u0:u1] = True
+        # GrabCut on the window plus a margin of half its size (the background model's sample)
+        mg = 0.5 * R
+        a0, b0 = int(max(0, u0 - mg)), int(max(0, v0 - mg))
+        a1, b1 = int(min(w, u1 + mg)), int(min(h, v1 + mg))
+        init = np.full((h, w), cv2.GC_BGD, np.uint8)
+        init[window] = cv2.GC_PR_BGD
+        init[_disk((h, w), p, share * R) & window] = cv2.GC_PR_FGD
+        init[forbidden] = cv2.GC_BGD
+        init[sure] = cv2.GC_FGD
+        sub = (slice(b0, b1), slice(a0, a1))
+        fg = np.zeros((h, w), bool)
+        fg[sub] = grabcut(np.ascontiguousarray(img[sub]), init[sub], iterations, seed)
+        fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+        m = fill_holes(_component_at(fg | sure, sure)) & ~forbidden
+        if m.sum() > sure.sum():
+            out.append((m, window))
+    return out
+
+
+def click_object(
+    img: np.ndarray,
+    scene: ho.Scene,
+    points: np.ndarray,
+    fallback: list[np.ndarray],
+    iterations: int,
+    seed: int,
+) -> tuple[np.ndarray, list[tuple[float, dict]]]:
+    """The object mask from one or more clicks (crop pixels, (N, 2) u, v), and the (score, cues)
+    of every candidate tried. ``fallback``: masks from the region proposals containing the
+    clicks, scored with the GrabCut candidates."""
+    h, w = img.shape[:2]
+    pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
+    forbidden = scene.hand | scene.other_hands
+    exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    codes = ho.colour_codes(scene.lab)
+    gray = cv2.GaussianBlur(scene.lab[..., 0].astype(np.float32), (3, 3), 0)
+    grad = np.hypot(cv2.Sobel(gray, cv2.CV_32F, 1, 0), cv2.Sobel(gray, cv2.CV_32F, 0, 1))
+    p = pts[0]
+    cands = click_candidates(img, scene, p, forbidden, iterations, seed)
+    cands += [(m, None) for m in fallback if m.any()]
+    scored = []
+    for m, window in cands:
+        c = candidate_cues(m, p, window, scene, exclude, codes, grad)
+        scored.append((click_score(c), c, m))
+    if not scored:
+        return _disk((h, w), p, max(1.5, SURE * L_of(scene))) & ~forbidden, []
+    best = max(range(len(scored)), key=lambda i: scored[i][0])
+    obj = scored[best][2]
+    for q in pts[1:]:  # further clicks: their own best candidate joins the object
+        extra = click_object(img, scene, q[None], [], iterations, seed)[0]
+        obj = obj | extra
+    return obj, [(s, c) for s, c, _ in scored]
+
+
+def L_of(scene: ho.Scene) -> float:
+    return scene.palm
