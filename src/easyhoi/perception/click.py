@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from easyhoi.perception import held_object as ho
-from easyhoi.perception.skin import SKIN_D2, fill_holes, grabcut
+from easyhoi.perception.skin import SKIN_D2, draw_skeleton, fill_holes, grabcut
 
 #: Working windows: half-sides in palm lengths. From a small object next to the fingers to one
 #: a few hands across.
@@ -132,6 +132,13 @@ def click_candidates(
     h, w = img.shape[:2]
     L = scene.palm
     sure = _disk((h, w), p, max(1.5, SURE * L)) & ~scene.other_hands
+    # the hand mask may have absorbed part of the object (a skin-coloured or shadowed part
+    # next to the fingers): only the cores of its visible bones and the other hands are sure
+    # background, the rest of it is probable background
+    core = (draw_skeleton((h, w), scene.kp, 0.12 * L, palm=False) & scene.hand) | (
+        scene.other_hands
+    )
+    core &= ~sure
     out = []
     for k, share in [(k, sh) for k in WINDOWS for sh in SEED_SHARES]:
         R = k * L
@@ -146,13 +153,14 @@ def click_candidates(
         init = np.full((h, w), cv2.GC_BGD, np.uint8)
         init[window] = cv2.GC_PR_BGD
         init[_disk((h, w), p, share * R) & window] = cv2.GC_PR_FGD
-        init[forbidden] = cv2.GC_BGD
+        init[forbidden & window] = cv2.GC_PR_BGD
+        init[core] = cv2.GC_BGD
         init[sure] = cv2.GC_FGD
         sub = (slice(b0, b1), slice(a0, a1))
         fg = np.zeros((h, w), bool)
         fg[sub] = grabcut(np.ascontiguousarray(img[sub]), init[sub], iterations, seed)
         fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
-        m = fill_holes(_component_at(fg | sure, sure)) & ~forbidden
+        m = fill_holes(_component_at(fg | sure, sure)) & ~core
         if m.sum() > sure.sum():
             out.append((m, window))
     return out

@@ -250,6 +250,9 @@ class ClassicalHOISegmenter:
             has_object = best is not None and hyp.scores[best] >= self.min_score
             if not has_object:
                 obj = np.zeros(shape, bool)
+        if prompted and prompts.object_box is None:
+            # the user clicked the object: what the object took from the hand mask is object
+            hand_m &= ~obj
         obj &= ~hand_m
         runner = ho.runner_up(hyp, best) if (hyp is not None and best is not None) else None
         conf = {

@@ -1,0 +1,65 @@
+"""One-click object segmentation (``perception.click``) on drawn scenes with a known answer:
+a skin-coloured hand drawn from fixed keypoints and an object next to it that the region
+proposals do not give whole (textured, two-coloured, leaving the picture)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from easyhoi.perception.masks import ClassicalHOISegmenter
+from easyhoi.perception.prompts import Prompts
+from tests.test_perception_held_object import S, canvas, det, finish
+from tests.test_perception_masks import iou
+
+YY, XX = np.mgrid[0:S, 0:S]
+
+
+def click(img: np.ndarray, u: float, v: float, seed: int = 0) -> np.ndarray:
+    seg = ClassicalHOISegmenter(seed=seed).segment(
+        img, det(), prompts=Prompts(object_points=((u, v),))
+    )
+    assert seg.has_object and seg.meta["prompted"]
+    return seg.object_mask
+
+
+def test_one_click_recovers_a_textured_object():
+    obj = (np.abs(XX - 195) < 32) & (np.abs(YY - 60) < 40)
+    img = canvas()
+    checker = ((XX // 6 + YY // 6) % 2).astype(bool)
+    img[obj & checker] = (200, 40, 40)
+    img[obj & ~checker] = (40, 60, 170)
+    img, hand = finish(img)
+    assert not (obj & hand).any()
+    assert iou(click(img, 195.0, 60.0), obj) > 0.8
+
+
+def test_one_click_recovers_an_object_with_a_strong_internal_edge():
+    # a cup: a dark lid over a light body, the click on the body
+    obj = ((XX - 195) ** 2 / 30**2 + (YY - 65) ** 2 / 45**2) < 1
+    img = canvas()
+    img[obj & (YY < 45)] = (60, 20, 20)
+    img[obj & (YY >= 45)] = (230, 200, 60)
+    img, hand = finish(img)
+    assert not (obj & hand).any()
+    assert iou(click(img, 195.0, 75.0), obj) > 0.8
+
+
+def test_one_click_recovers_an_object_leaving_the_picture():
+    obj = (XX > 175) & (np.abs(YY - 60) < 25)  # runs out of the right edge
+    img = canvas()
+    img[obj] = (40, 140, 60)
+    img, hand = finish(img)
+    m = click(img, 215.0, 60.0)
+    assert iou(m, obj) > 0.8
+    assert m[:, -1].sum() > 30  # it reaches the picture's edge
+
+
+def test_one_click_is_deterministic():
+    obj = (np.abs(XX - 195) < 30) & (np.abs(YY - 60) < 35)
+    rng = np.random.default_rng(1)
+    img = canvas()
+    img[obj] = (200, 40, 40) + rng.normal(0, 25, (obj.sum(), 3))
+    img, _ = finish(img)
+    a, b = click(img, 195.0, 60.0), click(img, 195.0, 60.0)
+    assert np.array_equal(a, b)
+    assert iou(a, obj) > 0.8
