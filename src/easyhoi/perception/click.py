@@ -33,11 +33,11 @@ SEED_SHARES = (0.35, 1.5)
 SURE = 0.06
 #: Score weights of :func:`click_score`.
 CLICK_WEIGHTS = {
-    "contrast": 1.5,
-    "edge": 1.5,
+    "contrast": 3.0,
+    "edge": 2.0,
     "solidity": 0.5,
     "depth": 3.0,
-    "window": -2.5,
+    "window": -1.5,
     "skin": -0.5,
     "size": -1.0,
     "log_area": 0.4,
@@ -166,6 +166,13 @@ def click_candidates(
     return out
 
 
+def collapsed(mask: np.ndarray, scene: ho.Scene) -> bool:
+    """Whether GrabCut kept little more than the sure disks around the clicks (it found no
+    colour model separating the object from its surroundings)."""
+    r = max(1.5, SURE * scene.palm)
+    return float(mask.sum()) < 4.0 * np.pi * r * r
+
+
 def click_object(
     img: np.ndarray,
     scene: ho.Scene,
@@ -192,14 +199,10 @@ def click_object(
         c = candidate_cues(m, p, window, scene, exclude, codes, grad)
         scored.append((click_score(c), c, m))
     if not scored:
-        return _disk((h, w), p, max(1.5, SURE * L_of(scene))) & ~forbidden, []
+        return _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden, []
     best = max(range(len(scored)), key=lambda i: scored[i][0])
     obj = scored[best][2]
     for q in pts[1:]:  # further clicks: their own best candidate joins the object
         extra = click_object(img, scene, q[None], [], iterations, seed)[0]
         obj = obj | extra
     return obj, [(s, c) for s, c, _ in scored]
-
-
-def L_of(scene: ho.Scene) -> float:
-    return scene.palm

@@ -122,6 +122,10 @@ class ClassicalHOISegmenter:
         Felzenszwalb scale at ``work_side`` (larger: fewer, bigger base segments).
     min_score : float
         Best hypothesis score below which the hand holds no object.
+    click_side : int
+        Longer side of the working crop when the prompts are object points only: the clicked
+        object is grown from the points by GrabCut at this resolution (thin objects need the
+        detail), and the region proposals are only computed when GrabCut collapses.
     refine_top : int
         Number of best distinct hypotheses refined by GrabCut and scored again.
     iterations : int
@@ -137,10 +141,12 @@ class ClassicalHOISegmenter:
         segment_scale: float = 150.0,
         min_score: float = 1.0,
         iterations: int = 5,
+        click_side: int = 384,
         refine_top: int = 1,
         seed: int = 0,
     ):
         self.refine_top = int(refine_top)
+        self.click_side = int(click_side)
         self.crop_factor = float(crop_factor)
         self.work_side = int(work_side)
         self.segment_scale = float(segment_scale)
@@ -149,7 +155,7 @@ class ClassicalHOISegmenter:
         self.seed = int(seed)
 
     # -- crop ----------------------------------------------------------------------------------
-    def _crop(self, shape, kp, prompts: Prompts | None):
+    def _crop(self, shape, kp, prompts: Prompts | None, work_side: int):
         h, w = shape
         lo, hi = kp.min(0), kp.max(0)
         c = (lo + hi) / 2
@@ -170,7 +176,7 @@ class ClassicalHOISegmenter:
         x1, y1 = int(min(w, np.ceil(x1))), int(min(h, np.ceil(y1)))
         if x1 - x0 < 8 or y1 - y0 < 8:
             raise InvalidInputError(f"hand keypoints {lo}..{hi} lie outside the {w}x{h} image")
-        s = self.work_side / max(x1 - x0, y1 - y0)
+        s = work_side / max(x1 - x0, y1 - y0)
         return (x0, y0, x1, y1), s
 
     # -- main ----------------------------------------------------------------------------------
@@ -187,14 +193,16 @@ class ClassicalHOISegmenter:
         contains the points / fills the box; ``others`` are the other detected hands (never
         part of the object).
         """
-        from easyhoi.perception.prompted import prompted_object
+        from easyhoi.perception.prompted import clicked_object, prompted_object
 
         image = check_image(image)
         H, W = image.shape[:2]
         kp_full = _check_keypoints(hand)
         if prompts is not None:
             prompts = prompts.check(W, H)
-        (x0, y0, x1, y1), s = self._crop((H, W), kp_full, prompts)
+        clicks = prompts is not None and bool(prompts.object_points) and prompts.object_box is None
+        side = self.click_side if clicks else self.work_side
+        (x0, y0, x1, y1), s = self._crop((H, W), kp_full, prompts, side)
         cw, ch = max(8, round((x1 - x0) * s)), max(8, round((y1 - y0) * s))
         interp = cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR
         img = np.ascontiguousarray(cv2.resize(image[y0:y1, x0:x1], (cw, ch), interpolation=interp))
@@ -224,15 +232,25 @@ class ClassicalHOISegmenter:
         scene = ho.Scene(lab=lab, hand=hand_m, kp=kp, skin_d2=d2, other_hands=other)
         excl = hand_m | other
         min_size = max(8, int((0.12 * L) ** 2))
-        props = propose(
-            img,
-            lab,
-            excl,
-            self.segment_scale,
-            min_size,
-            max_size=4.0 * ho.AREA_RANGE[1] * scene.hand_area,
-        )
-        if prompted:
+
+        def proposals():
+            return propose(
+                img,
+                lab,
+                excl,
+                self.segment_scale * side / self.work_side,
+                min_size,
+                max_size=4.0 * ho.AREA_RANGE[1] * scene.hand_area,
+            )
+
+        props = None
+        if clicks:
+            obj, hyp, best, props = clicked_object(
+                img, scene, to_work(prompts.object_points), proposals, self.iterations, self.seed
+            )
+            has_object = bool(obj.any())
+        elif prompted:
+            props = proposals()
             pts = to_work(prompts.object_points) if prompts.object_points else np.zeros((0, 2))
             box = None
             if prompts.object_box is not None:
@@ -243,6 +261,7 @@ class ClassicalHOISegmenter:
             )
             has_object = bool(obj.any())
         else:
+            props = proposals()
             hyp = ho.rank(props, scene) if props.regions else None
             best, obj = None, np.zeros(shape, bool)
             if hyp is not None and np.isfinite(hyp.scores).any():
@@ -277,7 +296,7 @@ class ClassicalHOISegmenter:
         if hyp is not None:
             for i in np.argsort(-hyp.scores, kind="stable")[:3]:
                 if np.isfinite(hyp.scores[i]):
-                    cands.append(full(props.mask(props.regions[int(i)])))
+                    cands.append(full(hyp.proposals.mask(hyp.proposals.regions[int(i)])))
         return Segmentation(
             hand_mask=full(hand_m),
             object_mask=full(obj),
@@ -288,8 +307,8 @@ class ClassicalHOISegmenter:
                 "crop": [x0, y0, x1, y1],
                 "work_scale": s,
                 "palm_length_px": L / s,
-                "n_segments": props.n_base,
-                "n_hypotheses": len(props.regions),
+                "n_segments": None if props is None else props.n_base,
+                "n_hypotheses": None if props is None else len(props.regions),
                 "prompted": prompted,
                 "score": None if best is None else round(float(hyp.scores[best]), 3),
                 "margin": None

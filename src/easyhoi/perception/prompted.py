@@ -16,11 +16,13 @@ everything outside the box is sure background for GrabCut.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import cv2
 import numpy as np
 
 from easyhoi.perception import held_object as ho
-from easyhoi.perception.click import click_object
+from easyhoi.perception.click import click_object, collapsed
 from easyhoi.perception.proposals import Proposals
 from easyhoi.perception.skin import fill_holes
 
@@ -161,6 +163,40 @@ def prompted_object(
         if sc > best_s:
             best, obj, best_s = i, m, sc
     return obj, hyp, best
+
+
+def clicked_object(
+    img: np.ndarray,
+    scene: ho.Scene,
+    points: np.ndarray,
+    make_proposals: Callable[[], Proposals],
+    iterations: int,
+    seed: int,
+) -> tuple[np.ndarray, ho.Hypotheses, int | None, Proposals | None]:
+    """(object mask, hypotheses, index of the chosen one, proposals or None) for object points
+    alone: GrabCut grown from the points (:func:`easyhoi.perception.click.click_object`); the
+    region proposals (``make_proposals``, costly) only when GrabCut collapses to the points.
+    The hypotheses hold the output mask alone when no proposals were computed."""
+    h, w = img.shape[:2]
+    obj, _ = click_object(img, scene, points, [], iterations, seed)
+    if not collapsed(obj, scene):
+        return obj, mask_hypothesis(obj, scene), 0, None
+    props = make_proposals()
+    obj, hyp, best = prompted_object(img, props, scene, points, None, iterations, seed)
+    if hyp is None:
+        hyp, best = mask_hypothesis(obj, scene), 0
+    return obj, hyp, best, props
+
+
+def mask_hypothesis(mask: np.ndarray, scene: ho.Scene) -> ho.Hypotheses:
+    """Hypotheses holding one mask, with its cues and prompted score."""
+    props = Proposals(
+        labels=np.where(mask, 0, -1),
+        regions=(frozenset((0,)),),
+        sizes=np.array([float(mask.sum())]),
+    )
+    cues = ho.mask_cues(mask, scene)[None]
+    return ho.Hypotheses(props, cues, prompt_score(cues))
 
 
 def _grabcut_only(img, sure, boxmask, forbidden, iterations, seed) -> np.ndarray:
