@@ -1,7 +1,10 @@
 """Prompted held-object segmentation: the object is the region containing the user's points
 or filling the user's box.
 
-A point says where the object is but not how far it extends. The hypotheses of the proposal
+Points alone go to :func:`clicked_object`: GrabCut grown from the points
+(:mod:`easyhoi.perception.click`), the region proposals only when it collapses.
+
+With the proposals, a point says where the object is but not how far it extends. The hypotheses of the proposal
 hierarchy that contain every point form a chain from a single segment up to large parts of the
 crop. :func:`prompt_score` ranks them by whether they look like a whole object (outline
 contrast, solidity, size, not another hand); the best distinct levels (up to four) each seed
