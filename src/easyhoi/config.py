@@ -178,6 +178,13 @@ class ContactStageConfig:
     the mean over the contact-zone vertices of min(|d|, scan_band) / scan_band (d in normalised
     object units: the grasp's contact zones on the surface)."""
 
+    depth_only_registration: bool = False
+    """Apply only the depth part of each registration's translation (as a change of the metric
+    scale); False = the paper's full translation."""
+    initial_competes: bool = False
+    """The state the stage starts from competes for the best state (False = the paper's: only
+    states from the first registration on)."""
+
     def __post_init__(self):
         _positive(self, "lr", "peel_layers")
         _non_negative(self, "max_iters", "stop_loss", "patience", "min_delta", "icp_iters")
@@ -246,9 +253,20 @@ class RefineStageConfig:
     """Optimise the global pose phi."""
     optimise_pose: bool = True
     """Optimise the articulation theta."""
+    keypoint_weight: float = 0.0
+    """Weight of the robust 2D keypoint term against the detector's keypoints
+    (HOIInput.meta["keypoints2d"]); 0 = off (the paper has no such term)."""
+    keypoint_sigma: float = 0.05
+    """Geman-McClure scale of the keypoint term, as a fraction of the hand's size in the photo."""
+    push_out_steps: int = 0
+    """Before the gradient steps, move the penetrating hand rigidly out of the object along its
+    normal in up to this many steps (0 = off, the paper)."""
+    prior_weight: float = 0.0
+    """Weight of the anatomical pose prior (joint limits, hinges, finger coupling); 0: off."""
 
     def __post_init__(self):
-        _positive(self, "lr_global", "lr_pose", "sdf_resolution")
+        _positive(self, "lr_global", "lr_pose", "sdf_resolution", "keypoint_sigma")
+        _non_negative(self, "keypoint_weight", "prior_weight", "push_out_steps")
         if self.lr_transl is not None and not self.lr_transl > 0:
             raise InvalidInputError(
                 f"RefineStageConfig.lr_transl must be > 0 or None, got {self.lr_transl}"

@@ -37,6 +37,7 @@ from easyhoi.errors import EasyHOIError, InvalidInputError, OptimizationError
 from easyhoi.hoi import HOIInput, HOIResult, StageResult
 from easyhoi.optim.camera import fit_camera, initial_camera
 from easyhoi.optim.contact import ContactState, fit_contact, initial_hand
+from easyhoi.optim.hand_change import hand_change
 from easyhoi.optim.placement import camera_hand_to_object
 from easyhoi.optim.refine import fit_refine
 from easyhoi.optim.state import Scene, hard_iou
@@ -161,6 +162,7 @@ def optimize(
     timings["total"] = time.perf_counter() - t0
     with torch.no_grad():
         verts = hand_model(params).vertices[0].double().numpy() / m
+    change = hand_change(hand_model, inp, params, camera, m)
     return HOIResult(
         hand_params=params,
         camera=camera,
@@ -175,6 +177,7 @@ def optimize(
         config=to_dict(config),
         plausibility=report,
         meta=dict(inp.meta),
+        hand_change=change,
     )
 
 
