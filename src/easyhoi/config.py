@@ -258,6 +258,9 @@ class RefineStageConfig:
     (HOIInput.meta["keypoints2d"]); 0 = off (the paper has no such term)."""
     keypoint_sigma: float = 0.05
     """Geman-McClure scale of the keypoint term, as a fraction of the hand's size in the photo."""
+    rigid_first: bool = False
+    """In the first phase of the schedule only the global pose moves (the fingers keep the
+    estimator's articulation); False = the paper's joint optimisation."""
     push_out_steps: int = 0
     """Before the gradient steps, move the penetrating hand rigidly out of the object along its
     normal in up to this many steps (0 = off, the paper)."""

@@ -140,7 +140,8 @@ def push_out(
 
     Up to ``push_out_steps`` times: the vertices deeper than ``penetration_threshold`` give the
     direction (the SDF gradients at them, weighted by their depth, summed and normalised) and
-    the hand moves along it by the largest depth. Stops when nothing penetrates, or when the
+    the hand moves along it by the largest depth. Stops when nothing penetrates, when a move
+    does not reduce the summed depth of the penetrating vertices (it is undone), or when the
     gradients cancel (a hand wrapped round the object: only its fingers can open), or after
     :data:`PUSH_OUT_MAX` normalised units in all. The articulation is untouched, so a grasp that
     sank in as a whole (a depth or scale error) comes out without bending fingers.
@@ -152,13 +153,18 @@ def push_out(
     with torch.no_grad():
         verts = scene.hand_model(params).vertices[0] / metric_scale
     total = torch.zeros(3, dtype=verts.dtype)
-    steps = 0
-    for _ in range(cfg.push_out_steps):
+    steps, last = 0, None
+    for _ in range(cfg.push_out_steps + 1):
         v = (verts + total).detach().requires_grad_(True)
         d = scene.sdf(v, cfg.sdf_resolution)
         inside = d < cfg.penetration_threshold
-        if not bool(inside.any()):
+        sunk = float((-d[inside]).detach().sum())
+        if last is not None and sunk >= last[0]:  # the move made it worse: undo it, stop
+            total, steps = last[1], steps - 1
             break
+        if not bool(inside.any()) or steps == cfg.push_out_steps:
+            break
+        last = (sunk, total)
         (grad,) = torch.autograd.grad(d[inside].sum(), v)
         depth = -d[inside].detach()
         normals = grad[inside] / grad[inside].norm(dim=1, keepdim=True).clamp_min(1e-12)
@@ -221,7 +227,14 @@ def fit_refine(
     current = lambda: p0.__class__(go, tr0 + unit * delta, pose, p0.betas, p0.side)  # noqa: E731
     camera = camera.detach().to(dt)
 
+    phases_begun = []
+
     def begin(frac):
+        # rigid_first: the first phase moves the hand as a whole (the articulation's step size
+        # is 0), so penetration is resolved by the hand's pose before any finger bends
+        if cfg.rigid_first and cfg.optimise_pose and opt is not None:
+            opt.param_groups[-1]["lr"] = 0.0 if not phases_begun else cfg.lr_pose
+        phases_begun.append(frac)
         h, w = scene.render_size(frac, optim_cfg.render_size)
         return scene.masks_at(h, w), camera.resized(w, h)
 
