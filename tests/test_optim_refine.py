@@ -203,3 +203,16 @@ def test_translation_steps_are_in_object_sizes(box_scene, hand, lr):
     moved = (p.transl - p0.transl).abs().max().item()
     assert 0.5 * lr * unit < moved <= 6 * lr * unit * 1.01
     assert res.losses[-1]["penetration"] < res.losses[0]["penetration"]
+
+
+def test_rigid_first_moves_only_the_global_pose_in_the_first_phase(box_scene, hand):
+    sc, scene, cfg = box_scene
+    p0, _ = _pushed(sc, scene, hand, 0.005)
+    m, cam = sc.gt_metric_scale, sc.gt_camera.to(torch.float32)
+    rc = replace(cfg.refine, rigid_first=True, max_iters=6, patience=0, resolution_schedule=(1.0,))
+    p, _ = fit_refine(scene, p0, m, cam, rc, cfg)
+    assert torch.equal(p.pose, p0.pose.to(p.pose.dtype))  # one phase: the fingers never move
+    assert float((p.transl - p0.transl).abs().max()) > 0
+    rc2 = replace(rc, resolution_schedule=(0.5, 1.0), max_iters=12)
+    p2, _ = fit_refine(scene, p0, m, cam, rc2, cfg)
+    assert not torch.equal(p2.pose, p0.pose.to(p2.pose.dtype))  # the second phase bends them

@@ -202,7 +202,8 @@ def cmd_bench(args) -> int:
     cap = args.paper_cap if args.paper_cap is not None else (100 if args.quick else 0)
     settings = BenchmarkSettings(scenes=scenes, seed=args.seed, paper_scenes=min(paper, scenes),
                                  paper_cap=cap, perturbation=args.perturbation,
-                                 sd_steps=args.sd_steps, gallery=min(3, scenes))  # fmt: skip
+                                 sd_steps=args.sd_steps, gallery=min(3, scenes),
+                                 loss_ablation=not args.light, sd_cone=not args.light)  # fmt: skip
     report = run_benchmark(settings, progress=lambda msg: _say(args, msg))
     paths = save_report(report, args.out)
     _say(args, "\n" + tables_markdown(report))
@@ -512,6 +513,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="paper stage iteration cap (default 0 = none; quick 100)")  # fmt: skip
     p.add_argument("--perturbation", default="hamer", help="none, low, hamer (default), high")
     p.add_argument("--sd-steps", type=int, default=35, help="S.D. simulation steps (default 35)")
+    p.add_argument("--light", action="store_true",
+                   help="no loss ablation, no S.D. gravity cone (about 3x faster)")  # fmt: skip
     _add_common(p)
     p.set_defaults(func=cmd_bench)
 

@@ -113,7 +113,13 @@ def _kp2d_px(truth: _Truth, keypoints: np.ndarray, camera) -> float:
 
 
 def evaluate_hand(
-    truth: _Truth, params: HandParams, m: float, camera, sd_steps: int, simulate: bool = True
+    truth: _Truth,
+    params: HandParams,
+    m: float,
+    camera,
+    sd_steps: int,
+    simulate: bool = True,
+    cone: bool = True,
 ) -> dict:
     """Metrics of one hand (metric object frame, ``m`` metres per object unit) vs the truth.
 
@@ -139,7 +145,8 @@ def evaluate_hand(
     * ``hand_iou`` / ``object_iou``: visible hand vs the GT M_h, object vs the GT amodal mask;
     * ``scale_err_pct``: |m / true m - 1| in %.
 
-    ``simulate=False`` returns the hand errors only (``mpjpe_*``, ``mpvpe_*``, ``kp2d_px``).
+    ``simulate=False`` returns the hand errors only (``mpjpe_*``, ``mpvpe_*``, ``kp2d_px``);
+    ``cone=False`` simulates the untilted gravity only (``sd_cone_cm`` None).
     """
     from easyhoi.metrics.interaction import _signed_depths
 
@@ -165,13 +172,14 @@ def evaluate_hand(
     signed = np.where(inside, -dist, dist)
     hand_iou, object_iou = _mask_ious(truth, torch.as_tensor(V / m), camera)
     # the cone's first direction is the untilted gravity: its entry is the published S.D.
+    azimuths = SD_CONE_AZIMUTHS if cone else 0
     sd_cone, sd_per = metrics.cone_displacement(
-        hand, obj, truth.gravity_obj, SD_CONE_TILT_DEG, SD_CONE_AZIMUTHS, steps=sd_steps
+        hand, obj, truth.gravity_obj, SD_CONE_TILT_DEG, azimuths, steps=sd_steps
     )
     return {
         **errors,
         "sd_cm": sd_per[0],
-        "sd_cone_cm": sd_cone,
+        "sd_cone_cm": sd_cone if cone else None,
         "iv_cm3": metrics.intersection_volume(hand, obj, method="solid"),
         "iv_obman_cm3": metrics.intersection_volume(hand, obj, method="obman"),
         "pen_cm": float(dist[inside].max() * 100.0) if inside.any() else 0.0,
@@ -272,12 +280,12 @@ def _object_quality(inp, m: float, truth: _Truth, gt_mesh, n: int) -> dict:
     return out
 
 
-def _stage_metrics(truth, result, steps: int, simulate: bool = True) -> dict:
+def _stage_metrics(truth, result, steps: int, simulate: bool = True, cone: bool = True) -> dict:
     """:func:`evaluate_hand` of every stage snapshot of ``result``."""
     out = {}
     for st in result.stages:
         cam = st.camera if st.camera is not None else result.camera
         out[st.name] = evaluate_hand(
-            truth, st.hand_params, float(st.metric_scale), cam, steps, simulate
+            truth, st.hand_params, float(st.metric_scale), cam, steps, simulate, cone
         )
     return out
