@@ -21,7 +21,7 @@ from easyhoi.optim.state import Scene, hard_iou
 from easyhoi.render.raster import depth_map
 from easyhoi.render.soft import soft_silhouette
 from easyhoi.structures import Camera
-from tests.optim_scenes import make_scene
+from easyhoi.testing.optim_scenes import make_scene
 
 SIZE = 96
 

@@ -12,7 +12,7 @@ from easyhoi.config import get_preset
 from easyhoi.optim.contact import ContactState, fit_contact, initial_hand
 from easyhoi.optim.registration import contact_points, register_contacts
 from easyhoi.optim.state import Scene
-from tests.optim_scenes import make_scene
+from easyhoi.testing.optim_scenes import make_scene
 
 SIZE = 96
 NOISE = dict(rot_noise=0.05, trans_noise=0.02, depth_noise=0.05, pose_noise=0.03)

@@ -163,7 +163,7 @@ def test_keypoint_term_reprojects_like_the_camera():
     from easyhoi.config import get_preset
     from easyhoi.optim.refine import refine_terms
     from easyhoi.optim.state import Scene
-    from tests.optim_scenes import make_scene
+    from easyhoi.testing.optim_scenes import make_scene
 
     sc = make_scene("box")
     hand = sc.model
@@ -191,7 +191,7 @@ def test_push_out_takes_a_sunken_hand_out_without_bending_it():
     from easyhoi.config import get_preset
     from easyhoi.optim.refine import push_out
     from easyhoi.optim.state import Scene
-    from tests.optim_scenes import make_scene
+    from easyhoi.testing.optim_scenes import make_scene
 
     sc = make_scene("box")
     cfg = replace(get_preset("fast").optim.refine, push_out_steps=6)
@@ -219,7 +219,7 @@ def test_push_out_takes_a_sunken_hand_out_without_bending_it():
 def test_hand_change_zero_for_unchanged_hand_and_counts_moves():
     from easyhoi.optim.hand_change import hand_change
     from easyhoi.structures import Camera
-    from tests.optim_scenes import make_scene
+    from easyhoi.testing.optim_scenes import make_scene
 
     sc = make_scene("cylinder")
     inp = sc.inp

@@ -12,7 +12,7 @@ from easyhoi.optim.refine import fit_refine, refine_terms
 from easyhoi.optim.run import plausibility
 from easyhoi.optim.state import Scene
 from easyhoi.structures import HandParams
-from tests.optim_scenes import make_scene
+from easyhoi.testing.optim_scenes import make_scene
 
 SIZE = 96
 

@@ -1,4 +1,4 @@
-"""The three-stage prior-guided optimizer (METHOD.md section 2.2): public entry point.
+"""The three-stage prior-guided optimizer (docs/method.md section 2.2): public entry point.
 
 :func:`optimize` turns an :class:`~easyhoi.hoi.HOIInput` into an :class:`~easyhoi.hoi.HOIResult`:
 
@@ -116,7 +116,9 @@ def optimize(
         Optimizer settings (default: the default preset's, ``get_preset().optim``); an
         :class:`~easyhoi.config.EasyHOIConfig` is accepted and its ``optim`` used.
     hand_model : HandModel or None
-        The model ``inp.hand_params`` belong to (default: ``load_hand_model(inp.hand_model)``).
+        The run's hand model (:attr:`easyhoi.settings.RunSettings.hand_model`), the one
+        ``inp.hand_params`` belong to. None only for the built-in open hand
+        (:func:`easyhoi.hand.builtin_hand_model`); a MANO model must be passed in.
     progress : callable or None
         ``progress(stage_name, iteration, max_iters, {loss terms})``, called every
         ``config.history_every`` iterations of every stage.
@@ -144,9 +146,9 @@ def optimize(
         raise InvalidInputError(f"inp must be an HOIInput, got {type(inp).__name__}")
     dtype = config.torch_dtype
     if hand_model is None:
-        from easyhoi.hand import load_hand_model
+        from easyhoi.hand import builtin_hand_model
 
-        hand_model = load_hand_model(inp.hand_model, dtype=dtype)
+        hand_model = builtin_hand_model(inp.hand_model, dtype)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     with torch.random.fork_rng(devices=[]):

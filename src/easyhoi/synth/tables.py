@@ -296,8 +296,9 @@ def _stage_values(report: dict, stage: str, key: str, where: str = "stages") -> 
 
 
 def goals(report: dict) -> list[dict]:
-    """The targets of the optimizer (from the paper's tables) with the measured ratio, its
-    paired-bootstrap 95 % interval (:func:`ratio_interval`) and pass / miss (on the ratio)."""
+    """The targets of the optimizer (from the paper's tables, docs/method.md section 4) with the
+    measured ratio, its paired-bootstrap 95 % interval (:func:`ratio_interval`) and pass / miss
+    (on the ratio)."""
     sc = report["scenes"]
     out = []
 
