@@ -468,6 +468,13 @@ _FAST = EasyHOIConfig(
             # place the hand at the depth where its contact zones lie on the object's surface,
             # not where a single vertex first touches it: a grasp touches with pads and palm
             scan_band=0.02,
+            # a registration moves the hand only along the camera rays: the photo fixes where
+            # the hand is in the image, so the in-plane part of the ICP (biased where the two
+            # surfaces differ in shape) would only pull the hand off its silhouette
+            depth_only_registration=True,
+            # the start (already placed at the scanned depth) competes for the best state, so
+            # the stage never ends worse by its own score than it began
+            initial_competes=True,
         ),
         refine=RefineStageConfig(
             max_iters=100,
@@ -494,6 +501,16 @@ _FAST = EasyHOIConfig(
             # mm off the surface
             opposition_max_distance=0.1,
             penetration_threshold=-0.002,
+            # the photo's evidence: the detector's 2D keypoints (robust, a tenth of the hand's
+            # size as the Geman-McClure scale) and a pose prior, so that contact and penetration
+            # cannot bend fingers where the photo or anatomy says no
+            keypoint_weight=20.0,
+            keypoint_sigma=0.1,
+            prior_weight=10.0,
+            reg_weight=2.0,
+            # penetration is first resolved by moving the hand as a whole
+            push_out_steps=5,
+            rigid_first=True,
         ),
         # half the paper's render size: every render costs in proportion to its pixels
         render_size=128,
