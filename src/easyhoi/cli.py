@@ -231,34 +231,10 @@ def cmd_eval(args) -> int:
 
 
 def cmd_doctor(args) -> int:
-    """Versions, available backends and what is missing."""
-    import importlib
-    import os
-    import platform
+    """Versions, available backends and what is missing (imports none of the heavy libraries)."""
+    from easyhoi.doctor import doctor_lines
 
-    from easyhoi.perception.base import ROLES, available
-
-    lines = [f"easyhoi {__version__}, Python {platform.python_version()}"]
-    for mod in ("torch", "numpy", "scipy", "trimesh", "embreex", "point_cloud_utils",
-                "pymeshfix", "pybullet", "geomloss", "numba", "cv2", "skimage",
-                "mediapipe", "transformers", "diffusers", "gradio", "ray"):  # fmt: skip
-        try:
-            m = importlib.import_module(mod)
-            lines.append(f"  {mod:18s} {getattr(m, '__version__', 'ok')}")
-        except Exception as exc:  # noqa: BLE001 - report anything that fails to import
-            lines.append(f"  {mod:18s} not available ({type(exc).__name__})")
-    from easyhoi.render import get_backend
-
-    lines.append(f"renderer kernels: {get_backend()} (numba = compiled; torch = slower fallback)")
-    lines.append("backends:")
-    for role in ROLES:
-        lines.append(f"  {role:10s} {', '.join(available(role))}")
-    mano = os.environ.get("EASYHOI_MANO_DIR")
-    lines.append(
-        "MANO: " + (f"EASYHOI_MANO_DIR={mano}" if mano else
-                    "not configured (built-in open hand is used; pass --mano-dir to use MANO)")
-    )  # fmt: skip
-    for line in lines:
+    for line in doctor_lines(__version__):
         _say(args, line, force=True)
     return 0
 
@@ -328,6 +304,39 @@ def _check_out_dir(out: Path) -> None:
         raise InvalidInputError(f"cannot write to --out {out}: {p} exists and is not a folder")
     if not os.access(p, os.W_OK | os.X_OK):
         raise InvalidInputError(f"cannot write to --out {out}: no write permission on {p}")
+
+
+def _check_reconstruct_early(args) -> None:
+    """The checks of ``reconstruct`` that need no torch: run before torch is imported."""
+    _check_out_dir(Path(args.out))
+    if len(args.images) == 1:
+        _check_photo(Path(args.images[0]))
+
+
+def _check_photo(path: Path) -> None:
+    """Refuse a photo that is missing or not an image before torch and the models load.
+
+    Only the file's header is read (the photo is decoded once, later); a file that is an image
+    but corrupt further in still fails, with the same error, when it is decoded.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    if not path.exists():
+        raise InvalidInputError(f"image file not found: {path}")
+    if not path.is_file():
+        raise InvalidInputError(f"image path is not a file: {path}")
+    if path.stat().st_size == 0:
+        raise InvalidInputError(f"image file is empty (0 bytes): {path}")
+    try:
+        with Image.open(path):
+            pass
+    except UnidentifiedImageError:
+        raise InvalidInputError(
+            f"cannot read {path}: not an image in a supported format (JPEG, PNG, WebP, BMP, "
+            "TIFF...)"
+        ) from None
+    except OSError as exc:
+        raise InvalidInputError(f"cannot read {path}: {exc}") from None
 
 
 def _provided_from_args(args):
@@ -430,22 +439,24 @@ def _add_model_options(p: argparse.ArgumentParser) -> None:
                    help="folder or path of MANO_RIGHT.pkl (or set EASYHOI_MANO_DIR)")  # fmt: skip
 
 
-def _set_torch_threads() -> None:
+def _set_torch_threads(args) -> None:
     """One torch thread unless EASYHOI_TORCH_THREADS says otherwise.
 
     easyhoi's tensors are small (a few thousand vertices, <= 256 px masks): on this workload extra
     intra-op threads cost more in synchronisation than they save, badly so on a loaded machine.
+    Commands that never use torch (``doctor``) do not import it: importing torch costs a second.
     """
     import os
-
-    import torch
 
     raw = os.environ.get("EASYHOI_TORCH_THREADS", "1")
     try:
         n = max(1, int(raw))
     except ValueError:
         raise InvalidInputError(f"EASYHOI_TORCH_THREADS must be an integer, got {raw!r}") from None
-    torch.set_num_threads(n)
+    if getattr(args, "uses_torch", True):
+        import torch
+
+        torch.set_num_threads(n)
 
 
 _OUT_HELP = (
@@ -496,7 +507,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
     _add_common(p)
-    p.set_defaults(func=cmd_reconstruct)
+    p.set_defaults(func=cmd_reconstruct, check_early=_check_reconstruct_early)
 
     p = sub.add_parser("batch", help="every photo of a folder -> one result folder each")
     p.add_argument("folder", metavar="DIR", help="folder of photos")
@@ -580,7 +591,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("doctor", help="versions, backends and what is missing")
     _add_common(p)
-    p.set_defaults(func=cmd_doctor)
+    p.set_defaults(func=cmd_doctor, uses_torch=False)
     return parser
 
 
@@ -597,7 +608,9 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s")  # fmt: skip
     logger.setLevel(level)
     try:
-        _set_torch_threads()
+        if getattr(args, "check_early", None) is not None:
+            args.check_early(args)  # bad input fails in a fraction of a second, before torch
+        _set_torch_threads(args)
         return int(args.func(args) or 0)
     except EasyHOIError as exc:
         if args.verbose:
