@@ -271,6 +271,8 @@ def _config_from_args(args):
         if getattr(args, flag, None):
             perception[flag] = getattr(args, flag)
             perception[role] = perception[role] or name
+    if getattr(args, "full_size_pictures", False):
+        cfg = replace(cfg, full_size_pictures=True)
     perception = {k: v for k, v in perception.items() if v}
     if perception:
         cfg = replace(cfg, perception=replace(cfg.perception, **perception))
@@ -432,6 +434,12 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("-v", "--verbose", action="store_true", help="debug logs and tracebacks")
 
 
+def _add_picture_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--full-size-pictures", action="store_true",
+                   help="draw the result pictures at the photo's full size (slower; default: "
+                   "at the size the report shows them)")  # fmt: skip
+
+
 def _add_model_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hand-model", choices=("open", "mano"), default="open",
                    help="hand model: built-in open hand (default) or your MANO file")  # fmt: skip
@@ -506,6 +514,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hand-params", help="HaMeR hand file (.npz/.json/.pkl)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
+    _add_picture_options(p)
     _add_common(p)
     p.set_defaults(func=cmd_reconstruct, check_early=_check_reconstruct_early)
 
@@ -529,6 +538,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument(flag, default=None, help=f"{role} backend (see `easyhoi doctor`)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
+    _add_picture_options(p)
     _add_common(p)
     p.set_defaults(func=cmd_batch)
 
