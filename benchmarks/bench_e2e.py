@@ -1,0 +1,215 @@
+"""Photo to result folder, end to end: CPU and wall seconds per step, one process per photo.
+
+Each photo runs in a fresh Python process (a cold start: imports, compiled-kernel cache loads
+and the hand model included), with one torch thread, the ``fast`` preset and the default
+backends, writing the whole result folder. The child times every step with the process CPU
+clock and the wall clock:
+
+* ``imports``: interpreter start-up and every import a reconstruction needs (torch included);
+* ``decode``: reading the photo; ``perception``: hand, masks, inpainting, amodal mask, object;
+* the optimizer's steps: ``setup`` (scene), ``initial`` (first camera), ``hand placement``
+  (every placement of the estimator's hand), the ``camera``, ``contact`` and ``refine`` stages,
+  ``plausibility``;
+* ``outputs``: meshes, JSON, the five pictures and the report.
+
+The optimizer's steps are timed by wrapping the functions :mod:`easyhoi.optim.run` calls
+(missing names are skipped, so the script also measures other versions of the package: point
+``--src`` at their ``src`` folder). The process's whole CPU time comes from the operating system
+(``wait4``), so it includes what the step clocks miss (exit, garbage collection).
+
+The machine may be shared: CPU time is the primary figure (wall time grows with the load); the
+load average is recorded at the start and the end. Photos where perception finds no held object
+(or no hand) are reported as such and left out of the medians.
+
+Usage::
+
+    python benchmarks/bench_e2e.py                          # the photos of shared/data/images
+    python benchmarks/bench_e2e.py --photos a.jpg b.png --out /tmp/e2e
+    python benchmarks/bench_e2e.py --src /path/to/other/checkout/src   # another version
+
+Results: a markdown table on stdout, ``benchmarks/results/bench_e2e.md`` and ``.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "results"
+#: The shared photos, next to the checkout (as tests/conftest.py finds them).
+DEFAULT_PHOTOS = Path(__file__).resolve().parents[2] / "shared" / "data" / "images"
+
+#: Steps in table order (optimizer steps between perception and outputs).
+STEPS = ("imports", "decode", "perception", "setup", "initial", "hand placement", "camera",
+         "contact", "refine", "plausibility", "outputs")  # fmt: skip
+
+_CHILD = r"""
+import json, sys, time
+_c0, _w0 = time.process_time(), time.perf_counter()
+import torch
+torch.set_num_threads(1)
+from easyhoi.errors import NoHandError, NoObjectError
+from easyhoi.io.image import load_image
+from easyhoi.optim import run as optim_run
+from easyhoi.optim.run import optimize
+from easyhoi.perception.chain import perceive
+from easyhoi.result_folder import write_result_folder
+from easyhoi.settings import resolve_run
+from easyhoi.config import get_preset
+
+steps = {}
+
+def add(name, cpu, wall):
+    c, w = steps.get(name, (0.0, 0.0))
+    steps[name] = (c + cpu, w + wall)
+
+def timed(name, fn):
+    def inner(*a, **k):
+        c, w = time.process_time(), time.perf_counter()
+        try:
+            return fn(*a, **k)
+        finally:
+            add(name, time.process_time() - c, time.perf_counter() - w)
+    return inner
+
+for name, attr in (("initial", "initial_camera"), ("hand placement", "_place_hand"),
+                   ("camera", "fit_camera"), ("contact", "fit_contact"),
+                   ("refine", "fit_refine"), ("plausibility", "plausibility")):
+    if hasattr(optim_run, attr):
+        setattr(optim_run, attr, timed(name, getattr(optim_run, attr)))
+if hasattr(optim_run, "Scene"):
+    optim_run.Scene.from_input = timed("setup", optim_run.Scene.from_input)
+
+photo, folder = sys.argv[1], sys.argv[2]
+run = resolve_run(get_preset("fast"))
+add("imports", time.process_time(), time.perf_counter() - _w0)
+status = "ok"
+try:
+    image = timed("decode", load_image)(photo)
+    inp, _ = timed("perception", perceive)(image.rgb, run)
+    result = optimize(inp, run.config.optim, hand_model=run.hand_model)
+    timed("outputs", write_result_folder)(result, inp, folder, hand_model=run.hand_model)
+except (NoHandError, NoObjectError) as exc:
+    status = f"{type(exc).__name__}: {exc}"
+print(json.dumps({"status": status, "steps": steps, "cpu": time.process_time(),
+                  "wall": time.perf_counter() - _w0,
+                  "dynamo": "torch._dynamo" in sys.modules}))
+"""
+
+
+def run_photo(photo: Path, out: Path, src: Path | None) -> dict:
+    """Reconstruct one photo in a fresh process; its step times and whole-process CPU."""
+    env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", NUMBA_NUM_THREADS="1",
+               EASYHOI_TORCH_THREADS="1")  # fmt: skip
+    if src is not None:
+        env["PYTHONPATH"] = str(src)
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(photo), str(out / photo.stem)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)  # fmt: skip
+    before = _children_cpu()
+    stdout, stderr = proc.communicate()  # waits for the child: its CPU joins RUSAGE_CHILDREN
+    wall = time.perf_counter() - t0
+    if proc.returncode:
+        return {"photo": photo.name, "status": f"failed: {stderr.decode()[-300:]}"}
+    rec = json.loads(stdout.decode().strip().splitlines()[-1])
+    rec["photo"] = photo.name
+    rec["process_wall"] = wall
+    rec["process_cpu"] = _children_cpu() - before
+    return rec
+
+
+def _children_cpu() -> float:
+    """User + system seconds of every child process waited for so far."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def measure(photos: list[Path], out: Path, src: Path | None) -> list[dict]:
+    rows = []
+    for photo in photos:
+        rec = run_photo(photo, out, src)
+        rows.append(rec)
+        print(f"{photo.name}: {rec['status']}, CPU {rec.get('process_cpu', float('nan')):.2f} s",
+              file=sys.stderr)  # fmt: skip
+    return rows
+
+
+def _other(rec: dict) -> float:
+    return rec["process_cpu"] - sum(c for c, _ in rec["steps"].values())
+
+
+def table(rows: list[dict], load: tuple, header: str) -> str:
+    ok = [r for r in rows if r.get("status") == "ok"]
+    loads = f"Load average (1, 5, 15 min) at the start {load[0]}, at the end {load[1]}."
+    lines = [header, "", loads, ""]
+    cols = ["photo", "CPU s", "wall s", *STEPS, "other"]
+    lines.append("| " + " | ".join(cols) + " |")
+    lines.append("|" + "---|" * len(cols))
+    for r in ok:
+        cells = [r["photo"], f"{r['process_cpu']:.2f}", f"{r['process_wall']:.1f}"]
+        cells += [f"{r['steps'].get(s, (float('nan'),))[0]:.2f}" for s in STEPS]
+        cells.append(f"{_other(r):.2f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    if ok:
+        med = [statistics.median(r["process_cpu"] for r in ok),
+               statistics.median(r["process_wall"] for r in ok)]  # fmt: skip
+        cells = ["**median**", f"**{med[0]:.2f}**", f"{med[1]:.1f}"]
+        for s in STEPS:
+            vals = [r["steps"][s][0] for r in ok if s in r["steps"]]
+            cells.append(f"{statistics.median(vals):.2f}" if vals else "-")
+        cells.append(f"{statistics.median(_other(r) for r in ok):.2f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    lines.append("")
+    lines.append("Step columns are CPU seconds of the process (wall seconds in the JSON); "
+                 "'other' is the process's CPU outside the timed steps (the optimizer's "
+                 "bookkeeping between stages, interpreter exit).")  # fmt: skip
+    for r in rows:
+        if r.get("status") != "ok":
+            lines.append(f"- {r['photo']}: not reconstructed ({r['status'][:160]})")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--photos", nargs="*", type=Path, default=None,
+                    help="photos (default: every photo of shared/data/images)")  # fmt: skip
+    ap.add_argument("--out", type=Path, default=None, help="result folders (default: temp)")
+    ap.add_argument("--src", type=Path, default=None,
+                    help="the package's src folder to measure (default: as installed)")  # fmt: skip
+    ap.add_argument("--label", default="", help="name of this measurement in the outputs")
+    args = ap.parse_args(argv)
+    photos = args.photos
+    if photos is None:
+        photos = sorted(p for p in DEFAULT_PHOTOS.iterdir() if p.suffix.lower() in
+                        (".jpg", ".jpeg", ".png", ".webp"))  # fmt: skip
+    load0 = tuple(round(x, 2) for x in os.getloadavg())
+    with tempfile.TemporaryDirectory() as tmp:
+        out = args.out or Path(tmp)
+        rows = measure(photos, out, args.src)
+    load1 = tuple(round(x, 2) for x in os.getloadavg())
+    label = args.label or "easyhoi"
+    header = (f"End to end, fast preset, 1 torch thread, one process per photo ({label}; "
+              f"{platform.machine()}, {os.cpu_count()} cores, "
+              f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})")  # fmt: skip
+    md = table(rows, (load0, load1), header)
+    print(md)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    stem = "bench_e2e" + (f"_{args.label}" if args.label else "")
+    (RESULTS / f"{stem}.md").write_text(md)
+    doc = {"rows": rows, "load_start": load0, "load_end": load1, "label": label}
+    (RESULTS / f"{stem}.json").write_text(json.dumps(doc, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
