@@ -12,7 +12,8 @@ Failures reach the page as one readable sentence; tracebacks go to the server lo
 
 The reconstruction is injectable: ``reconstruct_fn(image_path, folder, config, *, seed,
 progress, say)`` with the signature of :func:`easyhoi.pipeline.reconstruct_photo` (the
-default), returning an object whose ``files`` lists what it wrote; the page needs
+default): it writes the result folder ``folder`` and returns an object whose ``files`` lists
+what it wrote; the page needs
 ``overlay.png``, ``scene.glb`` and ``result.json`` among them (see
 :mod:`easyhoi.result_folder`).
 """
@@ -247,7 +248,7 @@ def handle_request(
     work_root : path
         Folder under which this request gets its own ``run-*`` folder.
     reconstruct_fn : callable
-        ``(image_path, out_dir, config, *, seed, progress, say) -> object with .files``;
+        ``(image_path, folder, config, *, seed, progress, say) -> object with .files``;
         default :func:`easyhoi.pipeline.reconstruct_photo`.
     max_upload_mb : float
         Uploads larger than this are refused before decoding.
@@ -307,7 +308,7 @@ def handle_request(
     local = run / "input" / f"{stem}{suffix or src.suffix.lower()[:6]}"
     local.parent.mkdir()
     shutil.copyfile(src, local)
-    out_dir = run / "result"
+    out_dir = run / stem
 
     def on_progress(stage: str, it: int, total: int, losses: dict) -> None:
         if progress is not None:

@@ -221,7 +221,7 @@ def backend_seed(seed: int) -> int:
     return int(seed) % 2**31
 
 
-def _backend(pc, role: str, name: str, seed: int):
+def _backend(pc, role: str, name: str, seed: int = 0):
     """Create a backend: one that takes a ``seed`` gets :func:`backend_seed`, adapters of large
     models get their local model folder from config."""
     import inspect
