@@ -534,7 +534,7 @@ def run_batch(
     root : path-like or None
         Folder the photo names are relative to (None: the deepest common folder).
     threads : int or None
-        Torch threads per worker (None: ``max(1, cores // workers)``).
+        Torch threads per worker (None: :data:`easyhoi.distributed.DEFAULT_THREADS`, one).
 
     Returns
     -------

@@ -159,7 +159,7 @@ def _run_batch(args, images: list[Path], root: Path | None, run) -> int:
     try:
         summary = run_batch(
             images, args.out, worker, engine=getattr(args, "engine", "inline"),
-            workers=getattr(args, "workers", 1), resume=getattr(args, "resume", False),
+            workers=_batch_workers(args), resume=getattr(args, "resume", False),
             seed=run.seed, ray_address=getattr(args, "ray_address", None),
             progress=progress, root=root,
         )  # fmt: skip
@@ -167,6 +167,18 @@ def _run_batch(args, images: list[Path], root: Path | None, run) -> int:
         bar.close()
     _say(args, f"batch: {summary.line()}; manifest: {summary.manifest}")
     return summary.exit_code
+
+
+def _batch_workers(args) -> int:
+    """``--workers``, else one worker process per available core (1 for the inline engine)."""
+    workers = getattr(args, "workers", None)
+    if workers is not None:
+        return workers
+    if getattr(args, "engine", "inline") == "inline":
+        return 1  # several photos given to reconstruct: one warm process, this one
+    from easyhoi.distributed import available_cores
+
+    return available_cores()
 
 
 def cmd_demo(args) -> int:
@@ -521,7 +533,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("batch", help="every photo of a folder -> one result folder each")
     p.add_argument("folder", metavar="DIR", help="folder of photos")
     p.add_argument("--out", required=True, help="output folder (one subfolder per photo)")
-    p.add_argument("--workers", type=int, default=1, help="parallel workers (default 1)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="parallel worker processes, one torch thread each (default: one per "
+                   "CPU core)")  # fmt: skip
     p.add_argument("--engine", choices=("local", "ray", "inline"), default="local",
                    help="local process pool (default), ray, or inline (debugging)")  # fmt: skip
     p.add_argument("--ray-address", default=None,
