@@ -15,7 +15,9 @@ clock and the wall clock:
 The optimizer's steps are timed by wrapping the functions :mod:`easyhoi.optim.run` calls
 (missing names are skipped, so the script also measures other versions of the package: point
 ``--src`` at their ``src`` folder). The process's whole CPU time comes from the operating system
-(``wait4``), so it includes what the step clocks miss (exit, garbage collection).
+(``getrusage`` of the waited-for child), so it includes what the step clocks miss (the
+process's exit, done as the ``easyhoi`` command does it where the package has
+``easyhoi.cli.fast_exit``).
 
 The machine may be shared: CPU time is the primary figure (wall time grows with the load); the
 load average is recorded at the start and the end. Photos where perception finds no held object
@@ -102,6 +104,11 @@ except (NoHandError, NoObjectError) as exc:
 print(json.dumps({"status": status, "steps": steps, "cpu": time.process_time(),
                   "wall": time.perf_counter() - _w0,
                   "dynamo": "torch._dynamo" in sys.modules}))
+try:
+    from easyhoi.cli import fast_exit  # ends the process as the easyhoi command does
+except ImportError:
+    sys.exit(0)
+fast_exit(0)
 """
 
 

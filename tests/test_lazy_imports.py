@@ -106,3 +106,32 @@ def test_doctor_versions_match_the_imported_modules():
     assert library_version("numpy") == numpy.__version__
     assert library_version("torch") == torch.__version__
     assert library_version("surely_not_a_module_here") is None
+
+
+_ENTRY = """
+import atexit, sys
+from pathlib import Path
+marker = Path(sys.argv[1])
+atexit.register(lambda: marker.write_text("exit handlers ran"))
+sys.argv = ["easyhoi", *sys.argv[2:]]
+from easyhoi.cli import entry
+entry()
+print("not reached")
+"""
+
+
+@pytest.mark.parametrize("ok", [True, False])
+def test_entry_exits_with_mains_code_after_the_exit_handlers(tmp_path, ok):
+    marker = tmp_path / "marker.txt"
+    out = tmp_path / "out"
+    argv = ["demo-hand", "--out", str(out)] if ok else ["eval", str(tmp_path / "missing")]
+    proc = subprocess.run([sys.executable, "-c", _ENTRY, str(marker), *argv],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert marker.read_text() == "exit handlers ran"
+    assert "not reached" not in proc.stdout
+    if ok:
+        assert proc.returncode == 0, proc.stderr
+        assert "wrote" in proc.stdout  # buffered output was flushed before the fast exit
+        assert (out / "hand_grasp.ply").stat().st_size > 10_000
+    else:
+        assert proc.returncode == 2 and "error:" in proc.stderr

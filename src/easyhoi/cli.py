@@ -651,5 +651,39 @@ def main(argv: list[str] | None = None) -> int:
         return int(ExitCode.INTERNAL)
 
 
+def entry() -> None:
+    """The ``easyhoi`` console command: :func:`main`, then :func:`fast_exit` with its code."""
+    fast_exit(main())
+
+
+def fast_exit(code: int) -> None:
+    """End the process with ``code`` without Python's module teardown.
+
+    Python's own shutdown of a process that imported torch and the perception libraries
+    costs 0.5 to 1.3 s of CPU (clearing every module and freeing their objects) for nothing:
+    the process ends anyway. The exit handlers still run (logging, temporary files, worker
+    pools) and the output streams are flushed; only the teardown is skipped. When a
+    non-daemon thread is still running, the ordinary exit (which waits for it) is used.
+    """
+    import threading
+
+    others = [t for t in threading.enumerate()
+              if t is not threading.main_thread() and not t.daemon and t.is_alive()]  # fmt: skip
+    run_exit_handlers = getattr(__import__("atexit"), "_run_exitfuncs", None)
+    if others or run_exit_handlers is None:
+        sys.exit(code)
+    import os
+
+    try:
+        run_exit_handlers()
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):  # closed or broken pipe: nothing more to write
+                pass
+        os._exit(code)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    entry()
