@@ -23,9 +23,14 @@ The machine may be shared: CPU time is the primary figure (wall time grows with 
 load average is recorded at the start and the end. Photos where perception finds no held object
 (or no hand) are reported as such and left out of the medians.
 
+With ``--warm`` all photos run one after the other in one process (as ``easyhoi reconstruct
+a.jpg b.jpg ...`` does): the rows are then each photo's CPU and wall seconds inside that
+process, and the medians leave out the first photo (which carries the start-up).
+
 Usage::
 
     python benchmarks/bench_e2e.py                          # the photos of shared/data/images
+    python benchmarks/bench_e2e.py --warm                   # all of them in one process
     python benchmarks/bench_e2e.py --photos a.jpg b.png --out /tmp/e2e
     python benchmarks/bench_e2e.py --src /path/to/other/checkout/src   # another version
 
@@ -90,20 +95,27 @@ for name, attr in (("initial", "initial_camera"), ("hand placement", "_place_han
 if hasattr(optim_run, "Scene"):
     optim_run.Scene.from_input = timed("setup", optim_run.Scene.from_input)
 
-photo, folder = sys.argv[1], sys.argv[2]
+out_dir, photos = sys.argv[1], sys.argv[2:]
 run = resolve_run(get_preset("fast"))
 add("imports", time.process_time(), time.perf_counter() - _w0)
-status = "ok"
-try:
-    image = timed("decode", load_image)(photo)
-    inp, _ = timed("perception", perceive)(image.rgb, run)
-    result = optimize(inp, run.config.optim, hand_model=run.hand_model)
-    timed("outputs", write_result_folder)(result, inp, folder, hand_model=run.hand_model)
-except (NoHandError, NoObjectError) as exc:
-    status = f"{type(exc).__name__}: {exc}"
-print(json.dumps({"status": status, "steps": steps, "cpu": time.process_time(),
-                  "wall": time.perf_counter() - _w0,
-                  "dynamo": "torch._dynamo" in sys.modules}))
+records = []
+mark_c, mark_w = 0.0, _w0
+for photo in photos:
+    status = "ok"
+    try:
+        image = timed("decode", load_image)(photo)
+        inp, _ = timed("perception", perceive)(image.rgb, run)
+        result = optimize(inp, run.config.optim, hand_model=run.hand_model)
+        folder = out_dir + "/" + photo.rsplit("/", 1)[-1].rsplit(".", 1)[0]
+        timed("outputs", write_result_folder)(result, inp, folder, hand_model=run.hand_model)
+    except (NoHandError, NoObjectError) as exc:
+        status = f"{type(exc).__name__}: {exc}"
+    now_c, now_w = time.process_time(), time.perf_counter()
+    records.append({"status": status, "steps": steps, "cpu": now_c - mark_c,
+                    "wall": now_w - mark_w, "dynamo": "torch._dynamo" in sys.modules})
+    mark_c, mark_w = now_c, now_w
+    steps = {}
+print(json.dumps(records))
 try:
     from easyhoi.cli import fast_exit  # ends the process as the easyhoi command does
 except ImportError:
@@ -112,25 +124,30 @@ fast_exit(0)
 """
 
 
-def run_photo(photo: Path, out: Path, src: Path | None) -> dict:
-    """Reconstruct one photo in a fresh process; its step times and whole-process CPU."""
+def run_child(photos: list[Path], out: Path, src: Path | None) -> tuple[list[dict], float, float]:
+    """Reconstruct ``photos`` one after the other in one fresh process.
+
+    Returns the child's record per photo (its steps, and the CPU and wall seconds since the
+    previous photo ended: the first photo's include the start-up), the whole process's CPU
+    seconds (from the operating system) and its wall seconds.
+    """
     env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", NUMBA_NUM_THREADS="1",
                EASYHOI_TORCH_THREADS="1")  # fmt: skip
     if src is not None:
         env["PYTHONPATH"] = str(src)
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(photo), str(out / photo.stem)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)  # fmt: skip
     before = _children_cpu()
-    stdout, stderr = proc.communicate()  # waits for the child: its CPU joins RUSAGE_CHILDREN
+    proc = subprocess.run([sys.executable, "-c", _CHILD, str(out), *map(str, photos)],
+                          capture_output=True, env=env)  # fmt: skip
     wall = time.perf_counter() - t0
+    cpu = _children_cpu() - before  # run() waited for the child: its CPU joined RUSAGE_CHILDREN
     if proc.returncode:
-        return {"photo": photo.name, "status": f"failed: {stderr.decode()[-300:]}"}
-    rec = json.loads(stdout.decode().strip().splitlines()[-1])
-    rec["photo"] = photo.name
-    rec["process_wall"] = wall
-    rec["process_cpu"] = _children_cpu() - before
-    return rec
+        failed = {"status": f"failed: {proc.stderr.decode()[-300:]}", "steps": {}}
+        return [dict(failed, photo=p.name) for p in photos], cpu, wall
+    records = json.loads(proc.stdout.decode().strip().splitlines()[-1])
+    for rec, photo in zip(records, photos, strict=True):
+        rec["photo"] = photo.name
+    return records, cpu, wall
 
 
 def _children_cpu() -> float:
@@ -141,13 +158,22 @@ def _children_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def measure(photos: list[Path], out: Path, src: Path | None) -> list[dict]:
+def measure(photos: list[Path], out: Path, src: Path | None, warm: bool) -> list[dict]:
+    """Cold: one process per photo, whose whole CPU and wall time are the photo's. Warm: one
+    process for all photos, each photo's CPU and wall time measured inside it."""
+    if warm:
+        rows, cpu, wall = run_child(photos, out, src)
+        for r in rows:
+            r["process_cpu"], r["process_wall"] = r.get("cpu", 0.0), r.get("wall", 0.0)
+        rows[0]["first"] = True  # carries the start-up: left out of the medians
+        print(f"one process: CPU {cpu:.2f} s, wall {wall:.1f} s", file=sys.stderr)
+        return rows
     rows = []
     for photo in photos:
-        rec = run_photo(photo, out, src)
+        (rec,), cpu, wall = run_child([photo], out, src)
+        rec["process_cpu"], rec["process_wall"] = cpu, wall
         rows.append(rec)
-        print(f"{photo.name}: {rec['status']}, CPU {rec.get('process_cpu', float('nan')):.2f} s",
-              file=sys.stderr)  # fmt: skip
+        print(f"{photo.name}: {rec['status']}, CPU {cpu:.2f} s", file=sys.stderr)
     return rows
 
 
@@ -162,11 +188,13 @@ def table(rows: list[dict], load: tuple, header: str) -> str:
     cols = ["photo", "CPU s", "wall s", *STEPS, "other"]
     lines.append("| " + " | ".join(cols) + " |")
     lines.append("|" + "---|" * len(cols))
-    for r in ok:
-        cells = [r["photo"], f"{r['process_cpu']:.2f}", f"{r['process_wall']:.1f}"]
+    for r in [r for r in rows if r.get("status") == "ok"]:
+        name = r["photo"] + (" (first)" if r.get("first") else "")
+        cells = [name, f"{r['process_cpu']:.2f}", f"{r['process_wall']:.1f}"]
         cells += [f"{r['steps'].get(s, (float('nan'),))[0]:.2f}" for s in STEPS]
         cells.append(f"{_other(r):.2f}")
         lines.append("| " + " | ".join(cells) + " |")
+    ok = [r for r in ok if not r.get("first")]
     if ok:
         med = [statistics.median(r["process_cpu"] for r in ok),
                statistics.median(r["process_wall"] for r in ok)]  # fmt: skip
@@ -177,6 +205,10 @@ def table(rows: list[dict], load: tuple, header: str) -> str:
         cells.append(f"{statistics.median(_other(r) for r in ok):.2f}")
         lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
+    if any(r.get("first") for r in rows):
+        lines.append("One process for all photos: each row is the CPU and wall time since the "
+                     "previous photo ended; the first photo's (start-up and imports included) "
+                     "is left out of the medians.")  # fmt: skip
     lines.append("Step columns are CPU seconds of the process (wall seconds in the JSON); "
                  "'other' is the process's CPU outside the timed steps (the optimizer's "
                  "bookkeeping between stages, interpreter exit).")  # fmt: skip
@@ -194,6 +226,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--src", type=Path, default=None,
                     help="the package's src folder to measure (default: as installed)")  # fmt: skip
     ap.add_argument("--label", default="", help="name of this measurement in the outputs")
+    warm_help = "all photos in one process (the first one carries the start-up)"
+    ap.add_argument("--warm", action="store_true", help=warm_help)
     args = ap.parse_args(argv)
     photos = args.photos
     if photos is None:
@@ -202,10 +236,11 @@ def main(argv: list[str] | None = None) -> int:
     load0 = tuple(round(x, 2) for x in os.getloadavg())
     with tempfile.TemporaryDirectory() as tmp:
         out = args.out or Path(tmp)
-        rows = measure(photos, out, args.src)
+        rows = measure(photos, out, args.src, args.warm)
     load1 = tuple(round(x, 2) for x in os.getloadavg())
     label = args.label or "easyhoi"
-    header = (f"End to end, fast preset, 1 torch thread, one process per photo ({label}; "
+    how = "all photos in one process" if args.warm else "one process per photo"
+    header = (f"End to end, fast preset, 1 torch thread, {how} ({label}; "
               f"{platform.machine()}, {os.cpu_count()} cores, "
               f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})")  # fmt: skip
     md = table(rows, (load0, load1), header)
