@@ -135,3 +135,10 @@ def test_entry_exits_with_mains_code_after_the_exit_handlers(tmp_path, ok):
         assert (out / "hand_grasp.ply").stat().st_size > 10_000
     else:
         assert proc.returncode == 2 and "error:" in proc.stderr
+
+
+def test_malformed_prompt_fails_without_torch(tmp_path):
+    argv = ["reconstruct", str(tmp_path / "any.png"), "--out", str(tmp_path), "--object-box", "1,2"]
+    res, _, err = _run(argv)
+    assert res == {"code": 2, "heavy": []}
+    assert "--object-box expects" in err

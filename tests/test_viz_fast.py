@@ -167,6 +167,7 @@ def test_full_size_figures_hold_more_pixels():
 _PICTURE_BYTES = """
 import hashlib, json
 from easyhoi.testing.hoi_scene import hand_model, make_input, make_result
+from easyhoi.viz.report import render_pictures
 pics = render_pictures(make_result(), make_input(), hand_model())
 print(json.dumps({k: hashlib.sha256(v).hexdigest() for k, v in sorted(pics.items())}))
 """

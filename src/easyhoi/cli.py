@@ -369,6 +369,7 @@ def _check_out_dir(out: Path) -> None:
 
 def _check_reconstruct_early(args) -> None:
     """The checks of ``reconstruct`` that need no torch: run before torch is imported."""
+    _prompts_from_args(args)  # malformed prompts first, as cmd_reconstruct reports them
     _check_out_dir(Path(args.out))
     if len(args.images) == 1:
         _check_photo(Path(args.images[0]))
