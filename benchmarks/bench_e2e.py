@@ -191,7 +191,7 @@ def table(rows: list[dict], load: tuple, header: str) -> str:
     for r in [r for r in rows if r.get("status") == "ok"]:
         name = r["photo"] + (" (first)" if r.get("first") else "")
         cells = [name, f"{r['process_cpu']:.2f}", f"{r['process_wall']:.1f}"]
-        cells += [f"{r['steps'].get(s, (float('nan'),))[0]:.2f}" for s in STEPS]
+        cells += [f"{r['steps'][s][0]:.2f}" if s in r["steps"] else "-" for s in STEPS]
         cells.append(f"{_other(r):.2f}")
         lines.append("| " + " | ".join(cells) + " |")
     ok = [r for r in ok if not r.get("first")]

@@ -15,7 +15,13 @@ from easyhoi.viz.overlay import (
     shrink_photo,
     stage_meshes,
 )
-from easyhoi.viz.plots import FIGURE_DPI, figure_png, new_figure, stage_loss_series
+from easyhoi.viz.plots import (
+    FIGURE_DPI,
+    figure_png,
+    fixed_margins,
+    new_figure,
+    stage_loss_series,
+)
 
 __all__ = ["render_stages", "stages_png"]
 
@@ -100,5 +106,6 @@ def stages_png(
     meshes = result_meshes(result)
     handles = [Patch(color=np.array(m.color) / 255, label=m.name) for m in meshes]
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=9, frameon=False)
-    fig.tight_layout(rect=(0, 0.05, 1, 0.95))
+    # the suptitle and up to three lines of panel title above each row, the legend below
+    fixed_margins(fig, left=0.05, right=0.05, top=0.95, bottom=0.3, wspace=0.1, hspace=0.7)
     return figure_png(fig)
