@@ -142,13 +142,15 @@ def perceive(
             raise InvalidInputError(f"{name} is {h}x{w} but the image is {H}x{W} (height x width)")
     masks_given = pv.hand_mask is not None and pv.object_mask is not None
     # the segmenter first: a missing model folder is reported before any work
-    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter, seed)
+    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter, seed, run.device)
     if pv.hand is not None and masks_given:  # nothing left for the detector to do
         say("hand detection (provided)")
         side = pv.hand[0].side
         hands = [HandDetection(np.zeros((0, 2)), None, side, 1.0, meta={"source": "provided"})]
     else:
-        hands = timed("hand detection", _backend(pc, "hand", pc.hand, seed).detect, image)
+        hands = timed(
+            "hand detection", _backend(pc, "hand", pc.hand, seed, run.device).detect, image
+        )
     report.hands_found = len(hands)
     if not hands:
         raise NoHandError("no hand found in the photo")
@@ -193,7 +195,7 @@ def perceive(
     else:
         chosen = timed("hand fit", fit_detection, chosen, model, W, H)
 
-    inpainter = _backend(pc, "inpainter", pc.inpainter, seed)
+    inpainter = _backend(pc, "inpainter", pc.inpainter, seed, run.device)
     inpainted = timed("inpainting", inpainter.inpaint, image, seg.hand_mask)
     points, box = amodal_prompts(seg.object_mask, seed=seed)
     if pv.amodal_mask is not None:
@@ -201,7 +203,7 @@ def perceive(
     else:
         amodal = timed(
             "amodal segmentation",
-            _backend(pc, "amodal", pc.amodal, seed).segment,
+            _backend(pc, "amodal", pc.amodal, seed, run.device).segment,
             inpainted,
             points,
             box,
@@ -212,7 +214,7 @@ def perceive(
         mesh = pv.object_mesh.copy()
         report.notes.append("object mesh provided (imported)")
     else:
-        reconstructor = _backend(pc, "object", pc.object, seed)
+        reconstructor = _backend(pc, "object", pc.object, seed, run.device)
         mesh = timed("object mesh", reconstructor.reconstruct, inpainted, amodal)
     if not mesh.is_watertight:
         mesh, wt = timed("watertight", make_watertight, mesh)
@@ -295,10 +297,11 @@ def backend_seed(seed: int) -> int:
     return int(seed) % 2**31
 
 
-def _backend(pc, role: str, name: str, seed: int = 0):
-    """Create a backend: one that takes a ``seed`` gets :func:`backend_seed`, adapters of large
-    models get their local model folders from config (one folder as ``model_dir``, several
-    each under its field's name)."""
+def _backend(pc, role: str, name: str, seed: int = 0, device: str = "cpu"):
+    """Create a backend: one that takes a ``seed`` gets :func:`backend_seed`, one that takes a
+    ``device`` gets the run's (adapters of large models: the model and its inputs go there),
+    adapters of large models get their local model folders from config (one folder as
+    ``model_dir``, several each under its field's name)."""
     from easyhoi.perception.base import factory
 
     kwargs = {}
@@ -308,6 +311,8 @@ def _backend(pc, role: str, name: str, seed: int = 0):
         params = {}
     if "seed" in params:
         kwargs["seed"] = backend_seed(seed)
+    if "device" in params:
+        kwargs["device"] = device
     fields = _MODEL_DIR_FIELDS.get(name)
     if fields is None:
         return create(role, name, **kwargs)
