@@ -66,7 +66,7 @@ def test_zero_grad_in_place_and_bad_settings():
     with pytest.raises(InvalidInputError):
         Adam([x], lr=-1.0)
     with pytest.raises(InvalidInputError):
-        Adam([torch.ones(2)])  # no gradient wanted
+        Adam([torch.ones(2, requires_grad=True) * 2])  # not a leaf
 
 
 def test_no_dynamo_import():

@@ -58,8 +58,8 @@ class Adam:
                     f"eps {group['eps']}"
                 )
             for p in group["params"]:
-                if not isinstance(p, torch.Tensor) or not p.is_leaf or not p.requires_grad:
-                    raise InvalidInputError("Adam optimises leaf tensors that require grad")
+                if not isinstance(p, torch.Tensor) or not p.is_leaf:
+                    raise InvalidInputError("Adam optimises leaf tensors")
             self.param_groups.append(group)
         self.state: dict[torch.Tensor, dict] = {}
 
