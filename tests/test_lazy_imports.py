@@ -142,3 +142,11 @@ def test_malformed_prompt_fails_without_torch(tmp_path):
     res, _, err = _run(argv)
     assert res == {"code": 2, "heavy": []}
     assert "--object-box expects" in err
+
+
+def test_batch_of_an_empty_or_missing_folder_fails_without_torch(tmp_path):
+    res, _, err = _run(["batch", str(tmp_path), "--out", str(tmp_path / "o")])
+    assert res == {"code": 2, "heavy": []}
+    assert "no photos found" in err
+    res, _, err = _run(["batch", str(tmp_path / "missing"), "--out", str(tmp_path / "o")])
+    assert res == {"code": 2, "heavy": []}

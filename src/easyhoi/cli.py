@@ -142,14 +142,8 @@ def cmd_reconstruct(args) -> int:
 
 def cmd_batch(args) -> int:
     """Reconstruct every photo of a folder; ``manifest.jsonl``/``.csv`` record each outcome."""
-    from easyhoi.batch import discover_images
-
     folder = Path(args.folder)
-    _check_out_dir(Path(args.out))
-    images = discover_images(folder, recursive=args.recursive, exclude=[args.out])
-    if not images:
-        hint = "" if args.recursive else " (add --recursive to include subfolders)"
-        raise InvalidInputError(f"no photos found in {folder}{hint}")
+    images = _batch_images(args)
     prompts = None
     if args.prompts:
         from easyhoi.batch import plan_tasks
@@ -158,6 +152,19 @@ def cmd_batch(args) -> int:
         photos = {t.key: t.image for t in plan_tasks(images, args.out, root=folder)}
         prompts = load_prompts_file(args.prompts, photos)
     return _run_batch(args, images, folder, run_from_args(args), prompts)
+
+
+def _batch_images(args) -> list[Path]:
+    """The photos of ``batch``'s folder, after checking ``--out`` (no torch needed)."""
+    from easyhoi.batch import discover_images
+
+    folder = Path(args.folder)
+    _check_out_dir(Path(args.out))
+    images = discover_images(folder, recursive=args.recursive, exclude=[args.out])
+    if not images:
+        hint = "" if args.recursive else " (add --recursive to include subfolders)"
+        raise InvalidInputError(f"no photos found in {folder}{hint}")
+    return images
 
 
 def _run_batch(args, images: list[Path], root: Path | None, run, prompts=None) -> int:
@@ -628,7 +635,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
     _add_picture_options(p)
     _add_common(p)
-    p.set_defaults(func=cmd_batch)
+    p.set_defaults(func=cmd_batch, check_early=_batch_images)
 
     p = sub.add_parser("example", help="synthetic photo -> full reconstruction (make demo)")
     p.add_argument("--out", default="outputs/demo", help="output folder")
