@@ -270,10 +270,13 @@ def test_resume_repairs_a_partial_last_line(photos, tmp_path):
     (out / MANIFEST_JSONL).write_text("".join(text[:-1]) + text[-1][: len(text[-1]) // 2])
     log.unlink()
     summary = run_batch(images, out, CountingWorker(str(log)), engine="inline", resume=True)
-    assert calls(log) == [last]
+    # its folder is complete (folders appear whole): recorded as ok without running it again
+    assert not log.exists()
     lines = (out / MANIFEST_JSONL).read_text().splitlines()
     assert len(lines) == 3 + 4 and all(json.loads(x) for x in lines)
     assert (summary.ok, summary.skipped) == (1, 3)
+    (rec,) = [r for r in summary.records if r.status == "ok"]
+    assert rec.path == last and "recovered" in rec.info
 
 
 # ----------------------------------------------------------------------------------------------
@@ -397,19 +400,26 @@ def test_cli_batch_exit_8_when_photos_fail(photos, tmp_path, capsys):
     assert [r["status"] for r in read_manifest(out / MANIFEST_JSONL)] == ["failed", "failed"]
 
 
-def _fake_pipeline(monkeypatch):
-    """Stand-ins for the reconstruction and the result writer (fast, no optimizer needed)."""
+def _fake_pipeline(monkeypatch, perception=None, prompts_seen=None):
+    """Stand-ins for the reconstruction and the result writer (fast, no optimizer needed).
+
+    ``perception`` is the perception report every photo gets; ``prompts_seen`` (a dict) records
+    the prompts and the strict flag each photo got.
+    """
     import easyhoi.pipeline as pipeline
     from easyhoi.io.image import load_image
 
     seen = {}
 
-    def reconstruct_photo(image, folder, settings, seed=None, **kw):
+    def reconstruct_photo(image, folder, settings, seed=None, prompts=None, strict=False, **kw):
         load_image(image)
         seen[Path(image).name] = (seed, settings.config.hand_model)
+        if prompts_seen is not None:
+            prompts_seen[Path(image).name] = (prompts, strict)
         Path(folder).mkdir(parents=True)
         (Path(folder) / "result.json").write_text(json.dumps({"result": "R"}))
-        return SimpleNamespace(files=[Path(folder) / "result.json"], seconds=0.01)
+        return SimpleNamespace(files=[Path(folder) / "result.json"], seconds=0.01,
+                               perception=perception or {})  # fmt: skip
 
     monkeypatch.setattr(pipeline, "reconstruct_photo", reconstruct_photo)
     return seen

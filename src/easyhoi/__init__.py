@@ -1,10 +1,12 @@
 """easyhoi: single-image 3D hand-object reconstruction on a CPU (the EasyHOI method).
 
-The small public API (heavier names are imported on first use)::
+The small public API (every name that needs torch is imported on first use)::
 
-    from easyhoi import reconstruct_photo, optimize, HOIInput, HOIResult, get_preset
-    rec = reconstruct_photo("photo.jpg", "results/")      # photo -> result folder
-    result = optimize(hoi_input, get_preset("fast"))      # HOIInput -> HOIResult
+    from easyhoi import reconstruct_photo, resolve_run, optimize, get_preset
+    rec = reconstruct_photo("photo.jpg", "results/photo")  # photo -> result folder
+    run = resolve_run(get_preset("fast"), seed=3)          # config + hand model + seed, once
+    rec = reconstruct_photo("photo.jpg", "results/photo", run)
+    result = optimize(hoi_input, run.config.optim, hand_model=run.hand_model)
 """
 
 from easyhoi.errors import (
@@ -13,17 +15,24 @@ from easyhoi.errors import (
     InvalidInputError,
     MissingDependencyError,
 )
-from easyhoi.structures import Camera, HandOutput, HandParams
 
 __version__ = "0.1.0"
 
+#: Public names imported on first use: ``import easyhoi`` (and so ``easyhoi --help``) must not
+#: pay for torch, which every one of these pulls in.
 _LAZY = {
+    "Camera": ("easyhoi.structures", "Camera"),
+    "HandOutput": ("easyhoi.structures", "HandOutput"),
+    "HandParams": ("easyhoi.structures", "HandParams"),
     "reconstruct_photo": ("easyhoi.pipeline", "reconstruct_photo"),
     "optimize": ("easyhoi.optim.run", "optimize"),
     "HOIInput": ("easyhoi.hoi", "HOIInput"),
     "HOIResult": ("easyhoi.hoi", "HOIResult"),
     "get_preset": ("easyhoi.config", "get_preset"),
     "EasyHOIConfig": ("easyhoi.config", "EasyHOIConfig"),
+    "RunSettings": ("easyhoi.settings", "RunSettings"),
+    "resolve_run": ("easyhoi.settings", "resolve_run"),
+    "write_result_folder": ("easyhoi.result_folder", "write_result_folder"),
     "load_hand_model": ("easyhoi.hand", "load_hand_model"),
     "save_hoi_input": ("easyhoi.io.hoi_io", "save_hoi_input"),
     "load_hoi_input": ("easyhoi.io.hoi_io", "load_hoi_input"),
@@ -44,12 +53,13 @@ def __getattr__(name: str):
 
 __all__ = [
     "BackendError",
-    "Camera",
     "EasyHOIError",
-    "HandOutput",
-    "HandParams",
     "InvalidInputError",
     "MissingDependencyError",
     "__version__",
     *_LAZY,
 ]
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

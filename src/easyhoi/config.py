@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, fields, is_dataclass, replace
 from functools import cache
 from typing import Any
 
+from easyhoi.device import check_device_name
 from easyhoi.errors import InvalidInputError
 
 __all__ = [
@@ -385,7 +386,11 @@ class PerceptionConfig:
     object: str = "silhouette"
     """Object reconstructor giving the object mesh."""
     sam_dir: str | None = None
-    """Local folder of a SAM model (transformers format) for the "sam" amodal backend."""
+    """Local folder of a SAM model (transformers format) for the "sam" amodal backend and the
+    "grounded-sam" segmenter."""
+    detector_dir: str | None = None
+    """Local folder of an OWLv2 or Grounding DINO detector (transformers) for the
+    "grounded-sam" segmenter."""
     depth_dir: str | None = None
     """Local folder of a depth-estimation model (transformers) for the "depth" object backend."""
     diffusion_dir: str | None = None
@@ -407,8 +412,15 @@ class EasyHOIConfig:
     """Hand model: "open" (built in) or "mano" (needs the user's MANO_RIGHT.pkl in mano_dir)."""
     mano_dir: str | None = None
     """Folder holding MANO_RIGHT.pkl (and MANO_LEFT.pkl); used when hand_model is "mano"."""
+    full_size_pictures: bool = False
+    """Result pictures at the photo's full size; by default they are drawn at the size they are
+    shown (overlay at most 1024 px, figure panels at their size in the figure), which is several
+    times cheaper."""
     name: str = "custom"
     """Name of the preset this configuration came from (provenance only)."""
+    device: str = "auto"
+    """Where tensors and large models run: "cpu", "cuda" (or "cuda:N"), or "auto" (cuda when
+    torch sees a GPU, else cpu); resolved once by :func:`easyhoi.settings.resolve_run`."""
 
     def __post_init__(self):
         _finite(self)
@@ -416,6 +428,7 @@ class EasyHOIConfig:
             raise InvalidInputError(
                 f"hand_model must be one of {_HAND_MODELS}, got {self.hand_model!r}"
             )
+        check_device_name(self.device)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -622,7 +635,10 @@ def with_overrides(cfg, overrides: dict[str, Any]):
             names = ", ".join(f.name for f in fields(parent)) if is_dataclass(parent) else "none"
             raise InvalidInputError(f"unknown config field {path!r} (fields here: {names})")
         new = _coerce(value, _hints(type(parent))[leaf], path)
-        cfg = _set(cfg, parts, new)
+        try:
+            cfg = _set(cfg, parts, new)
+        except InvalidInputError as exc:  # the value check of the dataclass: name the key
+            raise InvalidInputError(f"{path}={value!r} refused: {exc}") from None
     return cfg
 
 

@@ -13,16 +13,20 @@ Engines (:func:`execute` yields results in completion order):
     A :class:`concurrent.futures.ProcessPoolExecutor` with ``workers`` processes, started with
     ``"forkserver"`` where the platform has it (a server process imports easyhoi and torch
     once, then every worker is forked from it in milliseconds; pools restarted after a crash
-    reuse it) and ``"spawn"`` elsewhere. Each process uses ``max(1, cores // workers)`` torch
-    threads. At most ``workers`` tasks are in flight, so a process that dies (killed for memory,
-    a segfault in native code) can be pinned down: the tasks that were running are retried one
-    at a time in a fresh pool, and a task that kills its process again is recorded as failed.
+    reuse it) and ``"spawn"`` elsewhere. Each process uses one torch thread (see
+    :data:`DEFAULT_THREADS`) and stays alive for the whole batch, so imports, compiled kernels
+    and the hand model are loaded once per process, not once per photo. At most ``workers``
+    tasks are in flight, so a process that dies (killed for memory, a segfault in native code)
+    can be pinned down: the tasks that were running are retried one at a time in a fresh pool,
+    and a task that kills its process again is recorded as failed.
 ``"ray"``
     Ray tasks (the ``[distributed]`` extra). ``ray.init(address=...)`` joins an existing cluster;
     without an address a local cluster bound to 127.0.0.1 with ``num_cpus=workers`` and no
     dashboard is started (and shut down afterwards); all its processes listen on the loopback
     interface only. Results are collected with ``ray.wait`` as they finish. A Ray session that
-    is already initialised is reused and left running.
+    is already initialised is reused and left running. A worker whose ``device`` attribute
+    names a CUDA device asks Ray for GPUs (:func:`gpu_share`): one each when the cluster has
+    as many GPUs as workers, else an equal share of them, so the workers share the GPUs.
 ``"inline"``
     Sequentially in the calling process (debugging; no isolation, no thread change).
 
@@ -50,15 +54,18 @@ from easyhoi.errors import (
     ExitCode,
     InvalidInputError,
     MissingDependencyError,
+    as_resource_error,
 )
 
 __all__ = [
+    "DEFAULT_THREADS",
     "ENGINES",
     "EXIT_INTERNAL",
     "Task",
     "TaskResult",
     "available_cores",
     "execute",
+    "gpu_share",
     "run_task",
     "threads_per_worker",
 ]
@@ -132,8 +139,19 @@ def available_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: Torch threads per worker process unless told otherwise. easyhoi's tensors are small (a few
+#: thousand vertices, masks of at most 256 px): a second intra-op thread costs more in
+#: synchronisation than it saves (one worker with 2 threads ran 2.5x slower than with 1 on a
+#: 2-core machine), so parallelism comes from worker processes, one per core.
+DEFAULT_THREADS = 1
+
+
 def threads_per_worker(workers: int, cores: int | None = None) -> int:
-    """Torch threads for each of ``workers`` processes: ``max(1, cores // workers)``."""
+    """Threads that spread ``cores`` over ``workers`` processes: ``max(1, cores // workers)``.
+
+    Not the default (:data:`DEFAULT_THREADS`); pass it as ``threads`` to :func:`execute` for
+    workloads with large tensors.
+    """
     cores = available_cores() if cores is None else cores
     return max(1, cores // max(1, workers))
 
@@ -149,7 +167,30 @@ def _set_threads(threads: int | None) -> None:
         torch.set_num_threads(threads)
 
 
+def gpu_share(total_gpus: float, workers: int) -> float:
+    """GPUs each Ray task asks for: one each when there are enough, else an equal share.
+
+    ``min(1, total_gpus / workers)``: 4 workers on 1 GPU take 0.25 each (Ray runs all four on
+    it at once), 4 workers on 8 GPUs take one each.
+
+    Raises:
+        InvalidInputError: the cluster has no GPU (tasks asking for one would never start).
+    """
+    if not total_gpus > 0:
+        raise InvalidInputError(
+            "the run's device is cuda but the Ray cluster has no GPU; use --device cpu or a "
+            "cluster with GPUs"
+        )
+    return min(1.0, float(total_gpus) / max(1, int(workers)))
+
+
+def _uses_gpu(worker) -> bool:
+    """True when the worker runs on a CUDA device (its ``device`` attribute, if any)."""
+    return str(getattr(worker, "device", "cpu")).startswith("cuda")
+
+
 def _failure(key: str, exc: BaseException, seconds: float) -> TaskResult:
+    exc = as_resource_error(exc) or exc  # a full disk or no memory is not a bug
     if isinstance(exc, EasyHOIError):
         return TaskResult(key, "failed", seconds, type(exc).__name__, str(exc), exc.exit_code)
     return TaskResult(
@@ -206,7 +247,7 @@ def execute(
         worker (callable): Picklable ``worker(task) -> dict | None`` (see the module docstring).
         engine ({"local", "ray", "inline"}): Where to run (see the module docstring).
         workers (int): Parallel worker processes (local) or Ray CPUs of the local cluster; >= 1.
-        threads (int or None): Torch threads per worker (None: ``max(1, cores // workers)``);
+        threads (int or None): Torch threads per worker (None: :data:`DEFAULT_THREADS`);
             ignored inline.
         ray_address (str or None): Address of an existing Ray cluster (``"auto"``,
             ``"127.0.0.1:6379"``...); None starts a local one.
@@ -234,7 +275,7 @@ def execute(
     keys = [t.key for t in tasks]
     if len(set(keys)) != len(keys):
         raise InvalidInputError("task keys must be unique within a batch")
-    threads = threads_per_worker(workers) if threads is None else max(1, int(threads))
+    threads = DEFAULT_THREADS if threads is None else max(1, int(threads))
     if engine == "inline":
         return (run_task(worker, t) for t in tasks)
     _check_picklable(worker)
@@ -265,8 +306,17 @@ def _new_pool(workers: int, threads: int, mp_context: str) -> ProcessPoolExecuto
         # imported once by the fork server (only applies when it starts)
         ctx.set_forkserver_preload(["easyhoi.distributed"])
     return ProcessPoolExecutor(
-        max_workers=workers, mp_context=ctx, initializer=_set_threads, initargs=(threads,)
-    )
+        max_workers=workers, mp_context=ctx, initializer=_init_worker,
+        initargs=(threads, os.getpid()),
+    )  # fmt: skip
+
+
+def _init_worker(threads: int | None, batch_pid: int) -> None:
+    """Worker start: end with the batch process (see :mod:`easyhoi.process_guard`), threads."""
+    from easyhoi.process_guard import die_with
+
+    die_with(batch_pid)
+    _set_threads(threads)
 
 
 def _iter_local(
@@ -402,7 +452,8 @@ def _iter_ray(
 ) -> Iterator[TaskResult]:
     started = _ray_init(ray, workers, address)
     try:
-        remote = ray.remote(num_cpus=1, max_retries=1)(run_task)
+        gpus = gpu_share(ray.cluster_resources().get("GPU", 0), workers) if _uses_gpu(worker) else 0
+        remote = ray.remote(num_cpus=1, num_gpus=gpus, max_retries=1)(run_task)
         worker_ref = ray.put(worker)
         refs = {remote.remote(worker_ref, t, threads): t for t in tasks}
         waiting = list(refs)

@@ -10,6 +10,7 @@ pixel coordinates can be mapped back to the original file (``u_original = u / sc
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -62,24 +63,19 @@ def check_image(image: np.ndarray, name: str = "image") -> np.ndarray:
 
 
 def _open(path: str | Path):
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
+
+    from easyhoi.limits import check_image_header, unreadable_image_error
 
     p = Path(path)
-    if not p.exists():
-        raise InvalidInputError(f"image file not found: {p}")
-    if not p.is_file():
-        raise InvalidInputError(f"image path is not a file: {p}")
-    if p.stat().st_size == 0:
-        raise InvalidInputError(f"image file is empty (0 bytes): {p}")
+    check_image_header(p)  # missing, empty, too many bytes or pixels: refused before decoding
     try:
-        img = Image.open(p)
-        img.load()
-    except UnidentifiedImageError as exc:
-        raise InvalidInputError(
-            f"cannot read {p}: not an image in a supported format (JPEG, PNG, WebP, BMP, TIFF...)"
-        ) from exc
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            img = Image.open(p)
+            img.load()
     except (OSError, SyntaxError, ValueError) as exc:
-        raise InvalidInputError(f"cannot decode image {p}: corrupt or truncated ({exc})") from exc
+        raise unreadable_image_error(p, exc) from exc
     return img
 
 

@@ -59,6 +59,7 @@ import torch
 from easyhoi.config import ContactStageConfig, OptimConfig
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import HOIInput, StageResult
+from easyhoi.optim.adam import Adam
 from easyhoi.optim.loop import StageLoop, early_stop, run_phases
 from easyhoi.optim.losses import soft_iou_loss
 from easyhoi.optim.placement import camera_hand_to_object, hand_in_camera, move_hand, rest_wrist
@@ -79,8 +80,9 @@ MAX_SCALE_STEP = 2.0
 
 def _origin_camera(camera: Camera) -> Camera:
     """The same intrinsics with identity extrinsics (to work in the camera's own frame)."""
-    dt = camera.K.dtype
-    return Camera(camera.K.detach(), torch.eye(3, dtype=dt), torch.zeros(3, dtype=dt),
+    dt, dev = camera.K.dtype, camera.K.device
+    return Camera(camera.K.detach(), torch.eye(3, dtype=dt, device=dev),
+                  torch.zeros(3, dtype=dt, device=dev),
                   camera.width, camera.height)  # fmt: skip
 
 
@@ -96,8 +98,8 @@ class ContactState:
             self.v0 = scene.hand_model(self.params_cam).vertices[0]
         self.c0 = self.v0.mean(0)
         self.L = float((self.v0.max(0).values - self.v0.min(0).values).max())
-        self.r = torch.zeros(3, dtype=dt, requires_grad=True)
-        self.delta = torch.zeros(3, dtype=dt, requires_grad=True)
+        self.r = torch.zeros(3, dtype=dt, device=scene.device, requires_grad=True)
+        self.delta = torch.zeros(3, dtype=dt, device=scene.device, requires_grad=True)
         self.m = float(metric_scale)
 
     def verts_cam(self) -> torch.Tensor:
@@ -133,8 +135,8 @@ class ContactState:
         """Move the hand so the object-frame point ``anchor`` goes to ``anchor + D``; with
         ``depth_only`` only the depth part (a change of ``m``): the image-plane part is left to
         the masks, which see it, and the hand stays on its silhouette."""
-        R = self.camera.R.detach().double().numpy()
-        t = self.camera.t.detach().double().numpy()
+        R = self.camera.R.detach().double().cpu().numpy()
+        t = self.camera.t.detach().double().cpu().numpy()
         q = R @ anchor + t
         q_new = R @ (anchor + D) + t
         k = 1.0
@@ -143,7 +145,8 @@ class ContactState:
         self.m = self.m / k
         shift = np.zeros(3) if depth_only else (q_new - k * q) * self.m  # metres, camera frame
         with torch.no_grad():
-            self.delta += torch.as_tensor(shift / self.L, dtype=self.delta.dtype)
+            self.delta += torch.as_tensor(shift / self.L, dtype=self.delta.dtype,
+                                          device=self.delta.device)  # fmt: skip
         return {"scale_factor": 1.0 / k, "shift_m": float(np.linalg.norm(shift))}
 
 
@@ -236,13 +239,14 @@ def initial_hand(
     """
     cfg = ContactStageConfig() if cfg is None else cfg
     model = scene.hand_model
-    dt = scene.dtype
-    p_hc = hand_in_camera(inp.hand_params.to(dtype=dt), inp.hand_camera.to(dt), model)
+    dt, dev = scene.dtype, scene.device
+    hand_camera = inp.hand_camera.to(dt, dev)
+    p_hc = hand_in_camera(inp.hand_params.to(dtype=dt, device=dev), hand_camera, model)
     with torch.no_grad():
         c = model(p_hc).vertices[0].mean(0)
-    Kh, Ko = inp.hand_camera.K.to(dt), camera.K.detach().to(dt)
+    Kh, Ko = hand_camera.K, camera.K.detach().to(dt)
     k = math.sqrt(float(Ko[0, 0] * Ko[1, 1]) / float(Kh[0, 0] * Kh[1, 1]))
-    cam_h0, cam_o0 = _origin_camera(inp.hand_camera.to(dt)), _origin_camera(camera.to(dt))
+    cam_h0, cam_o0 = _origin_camera(hand_camera), _origin_camera(camera.to(dt))
     uv, z = cam_h0.project(c)
     c_new = cam_o0.unproject(uv, z * k)
     p_oc = HandParams(p_hc.global_orient, p_hc.transl + (c_new - c), p_hc.pose, p_hc.betas,
@@ -307,7 +311,7 @@ def fit_contact(
     """
     start = time.perf_counter()
     loop = StageLoop("contact", cfg.max_iters, optim_cfg.history_every, progress)
-    opt = torch.optim.Adam([state.r, state.delta], lr=cfg.lr)
+    opt = Adam([state.r, state.delta], lr=cfg.lr)
     sdf_res = optim_cfg.refine.sdf_resolution
     due = [r for r in cfg.register_at if r < cfg.max_iters]
     registrations: list[dict] = []

@@ -45,9 +45,10 @@ def hand_change(
     """
     dt = torch.float64
     with torch.no_grad():
-        k_est = model(inp.hand_params.to(dtype=dt)).keypoints[0]
-        k_res = model(params.detach().to(dtype=dt)).keypoints[0] / metric_scale
-        cam_h, cam_o = inp.hand_camera.detach().to(dt), camera.detach().to(dt)
+        dev = model.faces.device  # the model's device: the parameters go there
+        k_est = model(inp.hand_params.to(dtype=dt, device=dev)).keypoints[0].cpu()
+        k_res = model(params.detach().to(dtype=dt, device=dev)).keypoints[0].cpu() / metric_scale
+        cam_h, cam_o = inp.hand_camera.detach().to(dt, "cpu"), camera.detach().to(dt, "cpu")
         uv_est, _ = cam_h.project(k_est)
         uv_res, _ = cam_o.project(k_res)
         c_est = cam_h.world_to_camera(k_est)

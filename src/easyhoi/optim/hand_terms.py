@@ -88,7 +88,8 @@ def _violations(theta: torch.Tensor, axes: torch.Tensor, t: dict) -> torch.Tenso
     flex = (theta * axes).sum(-1)  # (B, 15)
     rest = theta - flex[..., None] * axes
     rest_norm = torch.sqrt((rest**2).sum(-1) + 1e-12)
-    mid, dist = flex[:, t["pairs"][:, 0]], flex[:, t["pairs"][:, 1]]
+    pairs = t["pairs"].to(theta.device)
+    mid, dist = flex[:, pairs[:, 0]], flex[:, pairs[:, 1]]
     return torch.cat(
         [
             t["lo"].to(theta) - flex,
@@ -127,7 +128,7 @@ def pose_prior_loss(
     if not isinstance(pose, torch.Tensor):
         raise InvalidInputError("pose_prior_loss: pose must be a torch tensor")
     theta = pose.reshape(-1, 15, 3)
-    axes = torch.as_tensor(flexion_axes, dtype=theta.dtype)
+    axes = torch.as_tensor(flexion_axes, dtype=theta.dtype, device=theta.device)
     if axes.shape != (15, 3):
         raise InvalidInputError(f"pose_prior_loss: flexion_axes must be (15, 3), got {axes.shape}")
     t = prior_tables(theta.dtype) if tables is None else tables
@@ -163,12 +164,14 @@ def keypoint_loss(
     if not (scale > 0 and sigma > 0 and math.isfinite(scale) and math.isfinite(sigma)):
         raise InvalidInputError(f"keypoint_loss: scale and sigma must be > 0 ({scale}, {sigma})")
     p = pred.reshape(-1, *pred.shape[-2:])
-    q = torch.as_tensor(target, dtype=p.dtype).detach()
+    q = torch.as_tensor(target, dtype=p.dtype, device=p.device).detach()
     if q.shape != p.shape[1:]:
         raise InvalidInputError(
             f"keypoint_loss: target {tuple(q.shape)} does not match pred {tuple(p.shape[1:])}"
         )
-    w = torch.ones(q.shape[0], dtype=p.dtype) if weights is None else weights.to(p.dtype)
+    w = torch.ones(q.shape[0], dtype=p.dtype, device=p.device)
+    if weights is not None:
+        w = weights.to(device=p.device, dtype=p.dtype)
     if not float(w.sum()) > 0:
         raise InvalidInputError("keypoint_loss: the joint weights sum to 0")
     r2 = ((p - q) ** 2).sum(-1) / scale**2

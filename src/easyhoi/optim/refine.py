@@ -36,6 +36,7 @@ import torch
 from easyhoi.config import OptimConfig, RefineStageConfig
 from easyhoi.hand.regions import DIGIT_JOINTS
 from easyhoi.hoi import StageResult
+from easyhoi.optim.adam import Adam
 from easyhoi.optim.hand_terms import keypoint_loss, pose_prior_loss
 from easyhoi.optim.loop import StageLoop, restore, run_phases, snapshot
 from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
@@ -90,8 +91,8 @@ def refine_terms(
         total = total + cfg.keypoint_weight * terms["keypoints"]
     if cfg.prior_weight > 0:
         # the axes are the right model's: a left hand's articulation is mirrored first
-        flip = torch.tensor([1.0, -1.0, -1.0] if params.side == "left" else [1.0] * 3,
-                            dtype=params.pose.dtype).repeat(15)  # fmt: skip
+        sign = [1.0, -1.0, -1.0] if params.side == "left" else [1.0] * 3
+        flip = torch.tensor(sign, dtype=params.pose.dtype, device=params.pose.device).repeat(15)
         terms["prior"] = pose_prior_loss(params.pose * flip, scene.flexion_axes(),
                                          reference=theta0 * flip)  # fmt: skip
         total = total + cfg.prior_weight * terms["prior"]
@@ -125,11 +126,11 @@ def contact_radii(scene: Scene, cfg: RefineStageConfig):
         return cfg.contact_max_distance
     regions = scene.regions
     part = regions.vertex_part[regions.contact_vertices]
-    opposing = torch.as_tensor([*DIGIT_JOINTS["thumb"], *DIGIT_JOINTS["index"]])
+    opposing = torch.as_tensor([*DIGIT_JOINTS["thumb"], *DIGIT_JOINTS["index"]], device=part.device)
     return torch.where(
-        torch.isin(part, opposing.to(part.device)),
-        torch.tensor(float(cfg.opposition_max_distance), dtype=scene.dtype),
-        torch.tensor(float(cfg.contact_max_distance), dtype=scene.dtype),
+        torch.isin(part, opposing),
+        torch.tensor(float(cfg.opposition_max_distance), dtype=scene.dtype, device=part.device),
+        torch.tensor(float(cfg.contact_max_distance), dtype=scene.dtype, device=part.device),
     )
 
 
@@ -152,7 +153,7 @@ def push_out(
     """
     with torch.no_grad():
         verts = scene.hand_model(params).vertices[0] / metric_scale
-    total = torch.zeros(3, dtype=verts.dtype)
+    total = torch.zeros(3, dtype=verts.dtype, device=verts.device)
     steps, last = 0, None
     for _ in range(cfg.push_out_steps + 1):
         v = (verts + total).detach().requires_grad_(True)
@@ -222,7 +223,7 @@ def fit_refine(
         groups.append({"params": [delta], "lr": lr_t})
     if cfg.optimise_pose:
         groups.append({"params": [pose], "lr": cfg.lr_pose})
-    opt = torch.optim.Adam(groups) if groups else None
+    opt = Adam(groups) if groups else None
     loop = StageLoop("refine", cfg.max_iters, optim_cfg.history_every, progress)
     current = lambda: p0.__class__(go, tr0 + unit * delta, pose, p0.betas, p0.side)  # noqa: E731
     camera = camera.detach().to(dt)

@@ -65,7 +65,7 @@ class PhotoKeypoints:
     size: float
 
     @classmethod
-    def from_meta(cls, meta: dict, dtype: torch.dtype) -> PhotoKeypoints | None:
+    def from_meta(cls, meta: dict, dtype: torch.dtype, device="cpu") -> PhotoKeypoints | None:
         """From ``meta["keypoints2d"]`` (21 x 2) and optional ``meta["keypoints2d_confidence"]``
         (21,); None when absent. Malformed values raise :class:`InvalidInputError`."""
         raw = (meta or {}).get("keypoints2d")
@@ -82,7 +82,11 @@ class PhotoKeypoints:
         size = float(np.ptp(pts, axis=0).max())
         if not size > 0 or not conf.sum() > 0:
             return None
-        return cls(torch.as_tensor(pts, dtype=dtype), torch.as_tensor(conf, dtype=dtype), size)
+        return cls(
+            torch.as_tensor(pts, dtype=dtype, device=device),
+            torch.as_tensor(conf, dtype=dtype, device=device),
+            size,
+        )
 
 
 @dataclass
@@ -128,8 +132,11 @@ class Scene:
     _axes: torch.Tensor | None = field(default=None, repr=False)
 
     @classmethod
-    def from_input(cls, inp: HOIInput, hand_model: HandModel, dtype: torch.dtype) -> Scene:
-        """Build the shared state of one run from an :class:`HOIInput`."""
+    def from_input(
+        cls, inp: HOIInput, hand_model: HandModel, dtype: torch.dtype, device="cpu"
+    ) -> Scene:
+        """Build the shared state of one run from an :class:`HOIInput`, its tensors on
+        ``device`` (``hand_model`` must already be there: :meth:`HandModel.on_device`)."""
         mesh = inp.object_mesh
         if mesh.is_watertight:
             wt = mesh
@@ -138,19 +145,19 @@ class Scene:
 
             logger.info("object mesh is not watertight: repairing it for the SDF and metrics")
             wt, _ = make_watertight(mesh)
-        v = torch.as_tensor(np.asarray(mesh.vertices), dtype=dtype)
+        v = torch.as_tensor(np.asarray(mesh.vertices), dtype=dtype, device=device)
         lo, hi = v.min(0).values, v.max(0).values
         extent = float((hi - lo).max())
         if not extent > 0:
             raise InvalidInputError("object mesh is degenerate (zero extent)")
         masks = {
-            "hand": torch.from_numpy(np.array(inp.hand_mask)).to(dtype),
-            "object": torch.from_numpy(np.array(inp.object_mask)).to(dtype),
-            "amodal": torch.from_numpy(np.array(inp.amodal_mask)).to(dtype),
+            "hand": torch.from_numpy(np.array(inp.hand_mask)).to(device, dtype),
+            "object": torch.from_numpy(np.array(inp.object_mask)).to(device, dtype),
+            "amodal": torch.from_numpy(np.array(inp.amodal_mask)).to(device, dtype),
         }
         return cls(
             object_verts=v,
-            object_faces=torch.as_tensor(np.asarray(mesh.faces), dtype=torch.long),
+            object_faces=torch.as_tensor(np.asarray(mesh.faces), dtype=torch.long, device=device),
             watertight=wt,
             center=0.5 * (lo + hi),
             extent=extent,
@@ -159,7 +166,7 @@ class Scene:
             dtype=dtype,
             image_size=inp.size,
             masks=masks,
-            keypoints=PhotoKeypoints.from_meta(inp.meta, dtype),
+            keypoints=PhotoKeypoints.from_meta(inp.meta, dtype, device),
         )
 
     def flexion_axes(self) -> torch.Tensor:
@@ -168,8 +175,15 @@ class Scene:
         if self._axes is None:
             from easyhoi.hand.regions import flexion_axes
 
-            self._axes = torch.as_tensor(flexion_axes(self.hand_model), dtype=self.dtype)
+            self._axes = torch.as_tensor(
+                flexion_axes(self.hand_model), dtype=self.dtype, device=self.device
+            )
         return self._axes
+
+    @property
+    def device(self) -> torch.device:
+        """Where every tensor of the run lives."""
+        return self.object_verts.device
 
     # -- resolution -----------------------------------------------------------------------------
     def render_size(self, fraction: float, render_size: int) -> tuple[int, int]:
@@ -200,7 +214,7 @@ class Scene:
             self._sdf_cache[resolution] = build_sdf_grid(
                 self.watertight, resolution, padding=SDF_PADDING, dtype=self.dtype,
                 exact_band=SDF_EXACT_BAND,
-            )  # fmt: skip
+            ).to(device=self.device)  # fmt: skip
         return self._sdf_cache[resolution]
 
     def sdf(self, points: torch.Tensor, resolution: int) -> torch.Tensor:

@@ -77,8 +77,11 @@ class Segmentation:
         object_mask: visible held object M_o (after contour-guided filtering); may be empty
             when ``has_object`` is False.
         has_object: False when no held object was found (a legitimate outcome).
-        candidates: object candidate masks before filtering (for pictures and debugging).
+        candidates: object candidate masks, best first (for pictures and debugging).
         meta: backend extras.
+        confidence: mask name ("hand", "object") ->
+            :class:`~easyhoi.perception.confidence.MaskConfidence`; empty when the backend
+            does not rate its masks.
     """
 
     hand_mask: np.ndarray
@@ -86,6 +89,7 @@ class Segmentation:
     has_object: bool
     candidates: tuple[np.ndarray, ...] = ()
     meta: dict = field(default_factory=dict)
+    confidence: dict = field(default_factory=dict)
 
 
 @runtime_checkable
@@ -97,8 +101,9 @@ class HandEstimator(Protocol):
 
 @runtime_checkable
 class HOISegmenter(Protocol):
-    def segment(self, image: np.ndarray, hand: HandDetection) -> Segmentation:
-        """Visible hand and held-object masks for ``hand``."""
+    def segment(self, image: np.ndarray, hand: HandDetection, prompts=None) -> Segmentation:
+        """Visible hand and held-object masks for ``hand``; ``prompts`` (a
+        :class:`~easyhoi.perception.prompts.Prompts`) point at the object when given."""
         ...
 
 
@@ -177,6 +182,7 @@ _BUILTIN_MODULES: list[str] = [
     "easyhoi.perception.amodal",
     "easyhoi.perception.objects",
     "easyhoi.perception.adapters.sam",
+    "easyhoi.perception.adapters.grounded_sam",
     "easyhoi.perception.adapters.depth",
     "easyhoi.perception.adapters.diffusion",
 ]
