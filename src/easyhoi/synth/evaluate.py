@@ -2,7 +2,7 @@
 
 :func:`evaluate_hand` measures one hand against the ground truth of a scene (units and frames:
 :mod:`easyhoi.synth.benchmark`); :func:`gt_hand_state` gives the GT hand as a result would hold
-it; :func:`refine_from_contact` re-runs stage 3 for the loss ablation; the private helpers
+it; :func:`refine_from_contact` re-runs stage 3 for the loss ablation; the private functions
 measure the estimator's hand, the input object's quality and every stage snapshot of a run.
 """
 
