@@ -97,7 +97,14 @@ def cmd_example(args) -> int:
         how = "synthetic perception outputs -> optimizer"
     p = result.plausibility
     _say(args, f"reconstructed ({how}) in {time.perf_counter() - t0:.1f} s")
-    _say(args, "plausibility: " + ", ".join(f"{k}={_fmt(v)}" for k, v in p.items()))
+    from easyhoi.optim.run import SELF_CONSISTENCY_KEYS
+
+    phys = {k: v for k, v in p.items() if k not in SELF_CONSISTENCY_KEYS}
+    own = {k: v for k, v in p.items() if k in SELF_CONSISTENCY_KEYS}
+    _say(args, "plausibility: " + ", ".join(f"{k}={_fmt(v)}" for k, v in phys.items()))
+    if own:
+        items = ", ".join(f"{k}={_fmt(v)}" for k, v in own.items())
+        _say(args, f"fit to its own masks (self-consistency, not accuracy): {items}")
     _say(args, f"results: {folder}  (open {folder / 'report.html'})")
     return 0
 

@@ -54,6 +54,12 @@ def _stage_error(name: str, exc: Exception) -> OptimizationError:
     return OptimizationError(f"stage {name!r} failed: {exc}")
 
 
+#: Plausibility entries that compare the result with the masks it was fitted to: they say how
+#: well the optimizer agreed with its own inputs, not whether those masks (and so the result)
+#: are right. Every display labels them as self-consistency, apart from the physical metrics.
+SELF_CONSISTENCY_KEYS = ("hand_mask_iou", "object_mask_iou")
+
+
 def plausibility(
     scene: Scene, params, metric_scale: float, camera, render_size: int, sdf_resolution: int = 64
 ) -> dict:

@@ -262,7 +262,12 @@ def report_html(
     title = title or str(result.meta.get("image", "")) or "reconstruction"
     doc = result_json(result)
     ious = mask_ious(result, inp)
-    metric_rows = [(k, v) for k, v in _flatten(result.plausibility)]
+    from easyhoi.optim.run import SELF_CONSISTENCY_KEYS
+
+    metric_rows = [
+        (f"{k} (fit to its own masks, not accuracy)" if k in SELF_CONSISTENCY_KEYS else k, v)
+        for k, v in _flatten(result.plausibility)
+    ]
     metric_rows += [(f"mask IoU: {k.replace('_', ' ')}", v) for k, v in ious.items()]
     timing_rows = [(k, v) for k, v in _flatten(result.timings)]
     stage_rows = []
