@@ -222,7 +222,8 @@ def test_metrics_table_formats_units_and_missing_values():
                                               None, "contact_distance_cm": float("nan")},
                              "seconds": 61.25})  # fmt: skip
     assert text.splitlines() == [
-        "| metric | value |", "|---|---|", "| object mask IoU | 0.833 |",
+        "| metric | value |", "|---|---|",
+        "| object mask IoU (fit to its own mask, not accuracy) | 0.833 |",
         "| penetration depth | n/a |", "| contact distance | n/a |", "| run time | 61.2 s |",
     ]  # fmt: skip
 
@@ -320,7 +321,7 @@ def test_real_pipeline_through_the_handler(tmp_path, shared_data):
         assert im.format == "PNG" and min(im.size) > 100
     assert res.glb.read_bytes()[:4] == b"glTF"
     assert {"penetration_depth_cm", "hand_mask_iou"} <= set(res.metrics["plausibility"])
-    assert "| hand mask IoU |" in res.metrics_text
+    assert "| hand mask IoU (fit to its own mask, not accuracy) |" in res.metrics_text
     assert any(d.startswith("optimizing: refine") for d in seen)
     with zipfile.ZipFile(io.BytesIO(res.downloads[0].read_bytes())) as zf:
         assert "hort-can/report.html" in zf.namelist()

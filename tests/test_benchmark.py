@@ -40,6 +40,7 @@ def test_gt_hand_maps_to_zero_error():
     e = evaluate_hand(_truth(scene, inp, fast), *gt_hand_state(scene, inp), sd_steps=5)
     for k in ("mpjpe_ra_cm", "mpjpe_root_cm", "mpjpe_cam_cm", "mpjpe_world_cm", "mpvpe_world_cm"):
         assert e[k] < 1e-6, (k, e[k])
+    assert e["kp2d_px"] < 1e-6  # reprojected through the GT camera: the GT 2D keypoints
     assert e["scale_err_pct"] < 1e-9
     assert e["hand_iou"] > 0.9  # GT hand, hard render, vs GT M_h (occluder: deformed object)
     # a 1 % metric-scale error moves the hand in the world frame but not its articulation
@@ -83,7 +84,7 @@ def test_quick_benchmark_sane_and_deterministic(quick_report, tmp_path):
     assert strip_timings(again) == strip_timings(rep["scenes"][0])
     # tables, goals and files
     tables = all_tables(rep)
-    assert len(tables) == 9
+    assert len(tables) == 10
     md = tables_markdown(rep)
     assert "| no optimization |" in md and "| w/o penetration |" in md
     # no paper run here (paper_scenes=0): the by-group tables say so
@@ -183,3 +184,41 @@ def test_preset_by_group_table_means_per_grasp_type():
     assert cells["lateral"][2] == "7.00 / 2.00 / 1.00"
     assert cells["all"][1] == "3" and cells["all"][2] == "3.33 / 3.33 / 1.00"
     assert preset_by_group_table({"scenes": rows[3:]}).startswith("(the paper preset did not run")
+
+
+def test_goals_and_hand_accuracy_table_against_naive_ratios():
+    from easyhoi.synth.tables import goals, hand_accuracy_table
+
+    def ev(sd, iv, mp, kp):
+        return {"sd_cm": sd, "iv_cm3": iv, "iv_obman_cm3": iv, "mpjpe_ra_cm": mp, "kp2d_px": kp}
+
+    def scene(k):
+        stages = {
+            "initial": ev(10.0 * k, 8, 1.0, 4.0),
+            "camera": ev(8.0 * k, 8, 1.0, 4.0),
+            "contact": ev(9.0 * k, 10, 1.0, 3.0),
+            "refine": ev(4.0 * k, 4, 0.9, 2.0),
+        }
+        gt = {**stages, "refine": ev(3.0, 1, 0.7 * k, 2.0)}
+        est = {"mpjpe_ra_cm": 1.0 * k, "kp2d_px": 4.0, "detector_kp2d_px": 2.0}
+        return {"stages": stages, "object_input": {"estimator": est, "gt_stages": gt}}
+
+    report = {"scenes": [scene(1.0), scene(2.0)]}
+    g = {x["goal"]: x for x in goals(report)}
+    sd = g["S.D. full / no optimization <= 0.55 (-45 %)"]
+    assert sd["ratio"] == pytest.approx((4 + 8) / (10 + 20)) and sd["met"]
+    raise_ = g["S.D. contact / camera <= 1 (no stage raises it)"]
+    assert raise_["ratio"] == pytest.approx(27 / 24) and not raise_["met"]
+    iv = g["I.V. (solid) refinement / contact alignment <= 0.45"]
+    assert iv["ratio"] == pytest.approx(0.4) and iv["met"]
+    mp = g["MPJPE after refinement / estimator's <= 1"]
+    assert mp["ratio"] == pytest.approx(1.8 / 3.0) and mp["met"]
+    gt = g["true object: MPJPE after refinement / estimator's <= 0.8"]
+    assert gt["ratio"] == pytest.approx(0.7 * 3.0 / 3.0) and gt["met"]
+    table = hand_accuracy_table(report).splitlines()
+    refine = [c.strip() for c in table[-1].strip("|").split("|")]
+    assert refine[0] == "+ refinement (full)"
+    assert refine[1] == "0.900" and refine[3] == "2.00" and refine[5] == "1.050"
+    assert refine[4] == "0.50 (0.50-0.50)"  # 2D error ratio identical in both scenes
+    detector = [c.strip() for c in table[3].strip("|").split("|")]
+    assert detector[3] == "2.00" and detector[4] == "0.50 (0.50-0.50)"

@@ -36,3 +36,14 @@ def test_cited_method_sections_exist():
     for path, text in _texts():
         for section in re.findall(r"docs/method\.md section (\d+(?:\.\d+)?)", text):
             assert section in headings, f"{path.relative_to(ROOT)} cites section {section}"
+
+
+def test_docs_and_code_describe_the_present():
+    """Docs and comments say what the code is now; the history of how it got there is in git."""
+    pattern = re.compile(r"\bsession\s+\d+", re.IGNORECASE)
+    found = []
+    for path, text in _texts():
+        if path.is_relative_to(ROOT / "tests"):
+            continue  # this test names the pattern it looks for
+        found += [f"{path.relative_to(ROOT)}: {m.group(0)}" for m in pattern.finditer(text)]
+    assert not found, found

@@ -221,3 +221,22 @@ def test_scan_band_finds_the_grasp_depth_of_a_held_grasp(held_grasp):
         d = scene.sdf(v, 48)[scene.regions.contact_vertices].numpy()
     naive = (1 - iou) + float(np.mean([min(abs(x), 0.02) for x in d])) / 0.02
     assert score == pytest.approx(naive, abs=1e-5)
+
+
+def test_depth_only_registration_keeps_the_hand_on_its_silhouette(hand):
+    """With depth_only the in-plane part of a registration is dropped: same pixels, new m."""
+    sc, scene, cfg, cam = _setup("box", hand, **NOISE)
+    p, m, _ = initial_hand(scene, sc.inp, cam, SIZE)
+    st = ContactState(scene, p, cam, m)
+    v0 = st.verts_obj().detach()
+    uv0, _ = cam.project(v0)
+    anchor = v0.mean(0).double().numpy()
+    ray = anchor - cam.center.double().numpy()
+    side = np.cross(ray, [0.0, 1.0, 0.0])
+    D = 0.2 * ray / np.linalg.norm(ray) + 0.3 * side / np.linalg.norm(side)
+    delta0 = st.delta.detach().clone()
+    out = st.apply_translation(D, anchor, use_scale=True, depth_only=True)
+    uv1, _ = cam.project(st.verts_obj().detach())
+    assert float((uv1 - uv0).norm(dim=-1).max()) < 1e-2
+    assert torch.equal(st.delta.detach(), delta0) and out["shift_m"] == 0.0
+    assert out["scale_factor"] != pytest.approx(1.0)

@@ -193,8 +193,12 @@ def _fmt(v) -> str:
 def metrics_markdown(metrics: dict) -> str:
     """A Markdown table of :attr:`DemoResult.metrics` (plausibility rows, then run facts)."""
     rows = ["| metric | value |", "|---|---|"]
+    from easyhoi.optim.run import SELF_CONSISTENCY_KEYS
+
     for key, value in metrics.get("plausibility", {}).items():
         text, unit = _label(key)
+        if key in SELF_CONSISTENCY_KEYS:
+            text += " (fit to its own mask, not accuracy)"
         shown = _fmt(value)
         rows.append(f"| {text} | {shown}{' ' + unit if unit and shown != 'n/a' else ''} |")
     for key in ("preset", "seed", "seconds"):

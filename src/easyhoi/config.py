@@ -198,6 +198,13 @@ class ContactStageConfig:
     the mean over the contact-zone vertices of min(|d|, scan_band) / scan_band (d in normalised
     object units: the grasp's contact zones on the surface)."""
 
+    depth_only_registration: bool = False
+    """Apply only the depth part of each registration's translation (as a change of the metric
+    scale); False = the paper's full translation."""
+    initial_competes: bool = False
+    """The state the stage starts from competes for the best state (False = the paper's: only
+    states from the first registration on)."""
+
     def __post_init__(self):
         _finite(self)
         _positive(self, "lr", "peel_layers")
@@ -267,10 +274,24 @@ class RefineStageConfig:
     """Optimise the global pose phi."""
     optimise_pose: bool = True
     """Optimise the articulation theta."""
+    keypoint_weight: float = 0.0
+    """Weight of the robust 2D keypoint term against the detector's keypoints
+    (HOIInput.meta["keypoints2d"]); 0 = off (the paper has no such term)."""
+    keypoint_sigma: float = 0.05
+    """Geman-McClure scale of the keypoint term, as a fraction of the hand's size in the photo."""
+    rigid_first: bool = False
+    """In the first phase of the schedule only the global pose moves (the fingers keep the
+    estimator's articulation); False = the paper's joint optimisation."""
+    push_out_steps: int = 0
+    """Before the gradient steps, move the penetrating hand rigidly out of the object along its
+    normal in up to this many steps (0 = off, the paper)."""
+    prior_weight: float = 0.0
+    """Weight of the anatomical pose prior (joint limits, hinges, finger coupling); 0: off."""
 
     def __post_init__(self):
         _finite(self)
-        _positive(self, "lr_global", "lr_pose", "sdf_resolution")
+        _positive(self, "lr_global", "lr_pose", "sdf_resolution", "keypoint_sigma")
+        _non_negative(self, "keypoint_weight", "prior_weight", "push_out_steps")
         if self.lr_transl is not None and not self.lr_transl > 0:
             raise InvalidInputError(
                 f"RefineStageConfig.lr_transl must be > 0 or None, got {self.lr_transl}"
@@ -391,6 +412,10 @@ class EasyHOIConfig:
     """Hand model: "open" (built in) or "mano" (needs the user's MANO_RIGHT.pkl in mano_dir)."""
     mano_dir: str | None = None
     """Folder holding MANO_RIGHT.pkl (and MANO_LEFT.pkl); used when hand_model is "mano"."""
+    full_size_pictures: bool = False
+    """Result pictures at the photo's full size; by default they are drawn at the size they are
+    shown (overlay at most 1024 px, figure panels at their size in the figure), which is several
+    times cheaper."""
     name: str = "custom"
     """Name of the preset this configuration came from (provenance only)."""
     device: str = "auto"
@@ -456,6 +481,13 @@ _FAST = EasyHOIConfig(
             # place the hand at the depth where its contact zones lie on the object's surface,
             # not where a single vertex first touches it: a grasp touches with pads and palm
             scan_band=0.02,
+            # a registration moves the hand only along the camera rays: the photo fixes where
+            # the hand is in the image, so the in-plane part of the ICP (biased where the two
+            # surfaces differ in shape) would only pull the hand off its silhouette
+            depth_only_registration=True,
+            # the start (already placed at the scanned depth) competes for the best state, so
+            # the stage never ends worse by its own score than it began
+            initial_competes=True,
         ),
         refine=RefineStageConfig(
             max_iters=100,
@@ -482,6 +514,16 @@ _FAST = EasyHOIConfig(
             # mm off the surface
             opposition_max_distance=0.1,
             penetration_threshold=-0.002,
+            # the photo's evidence: the detector's 2D keypoints (robust, a tenth of the hand's
+            # size as the Geman-McClure scale) and a pose prior, so that contact and penetration
+            # cannot bend fingers where the photo or anatomy says no
+            keypoint_weight=20.0,
+            keypoint_sigma=0.1,
+            prior_weight=10.0,
+            reg_weight=2.0,
+            # penetration is first resolved by moving the hand as a whole
+            push_out_steps=5,
+            rigid_first=True,
         ),
         # half the paper's render size: every render costs in proportion to its pixels
         render_size=128,

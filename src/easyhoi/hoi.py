@@ -304,6 +304,9 @@ class HOIResult:
         JSON-serialisable report (penetration depth, contact, ...).
     meta : dict
         JSON-serialisable provenance.
+    hand_change : dict
+        How far the optimizer moved the hand from the estimator's, per keypoint in cm and px
+        (:func:`easyhoi.optim.hand_change.hand_change`); empty when not computed.
     """
 
     hand_params: HandParams
@@ -319,6 +322,7 @@ class HOIResult:
     config: dict = field(default_factory=dict)
     plausibility: dict = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
+    hand_change: dict = field(default_factory=dict)
 
     def __post_init__(self):
         v = np.asarray(self.hand_vertices, dtype=np.float64)

@@ -237,6 +237,7 @@ def result_json(result: HOIResult) -> dict:
         "metric_scale": result.metric_scale,
         "metric_scale_meaning": "metres per object unit",
         "plausibility": _json_safe(result.plausibility),
+        "hand_change": _json_safe(result.hand_change),
         "timings": _json_safe(result.timings),
         "stages": stages,
         "versions": _versions(),

@@ -282,6 +282,7 @@ def save_hoi_result(result: HOIResult, folder: str | Path) -> Path:
         "seed": result.seed,
         "config": result.config,
         "plausibility": result.plausibility,
+        "hand_change": result.hand_change,
         "meta": result.meta,
     }
     try:
@@ -346,6 +347,7 @@ def _result_from(d: dict, hand, **fields) -> HOIResult:
         config=d.get("config", {}),
         plausibility=d.get("plausibility", {}),
         meta=d.get("meta", {}),
+        hand_change=d.get("hand_change", {}),
         **fields,
     )
 

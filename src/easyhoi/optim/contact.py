@@ -59,6 +59,7 @@ import torch
 from easyhoi.config import ContactStageConfig, OptimConfig
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import HOIInput, StageResult
+from easyhoi.optim.adam import Adam
 from easyhoi.optim.loop import StageLoop, early_stop, run_phases
 from easyhoi.optim.losses import soft_iou_loss
 from easyhoi.optim.placement import camera_hand_to_object, hand_in_camera, move_hand, rest_wrist
@@ -128,8 +129,12 @@ class ContactState:
             p_cam = move_hand(self.params_cam, Rr, t, wrist.to(Rr.dtype))
             return camera_hand_to_object(p_cam, self.camera, self.m, self.scene.hand_model)
 
-    def apply_translation(self, D: np.ndarray, anchor: np.ndarray, use_scale: bool) -> dict:
-        """Move the hand so the object-frame point ``anchor`` goes to ``anchor + D``."""
+    def apply_translation(
+        self, D: np.ndarray, anchor: np.ndarray, use_scale: bool, depth_only: bool = False
+    ) -> dict:
+        """Move the hand so the object-frame point ``anchor`` goes to ``anchor + D``; with
+        ``depth_only`` only the depth part (a change of ``m``): the image-plane part is left to
+        the masks, which see it, and the hand stays on its silhouette."""
         R = self.camera.R.detach().double().cpu().numpy()
         t = self.camera.t.detach().double().cpu().numpy()
         q = R @ anchor + t
@@ -138,7 +143,7 @@ class ContactState:
         if use_scale and q[2] > 0 and q_new[2] > 0:
             k = float(np.clip(q_new[2] / q[2], 1.0 / MAX_SCALE_STEP, MAX_SCALE_STEP))
         self.m = self.m / k
-        shift = (q_new - k * q) * self.m  # metres, object camera frame
+        shift = np.zeros(3) if depth_only else (q_new - k * q) * self.m  # metres, camera frame
         with torch.no_grad():
             self.delta += torch.as_tensor(shift / self.L, dtype=self.delta.dtype,
                                           device=self.delta.device)  # fmt: skip
@@ -306,7 +311,7 @@ def fit_contact(
     """
     start = time.perf_counter()
     loop = StageLoop("contact", cfg.max_iters, optim_cfg.history_every, progress)
-    opt = torch.optim.Adam([state.r, state.delta], lr=cfg.lr)
+    opt = Adam([state.r, state.delta], lr=cfg.lr)
     sdf_res = optim_cfg.refine.sdf_resolution
     due = [r for r in cfg.register_at if r < cfg.max_iters]
     registrations: list[dict] = []
@@ -317,7 +322,7 @@ def fit_contact(
 
     def register(phase, it):
         masks, cam = phase.context
-        if not registrations:
+        if not registrations and not cfg.initial_competes:
             loop.reset_best()  # only aligned states (after the first) compete
         with torch.no_grad():
             m_before = state.m
@@ -333,7 +338,8 @@ def fit_contact(
         info["scan_scale_factor"] = state.m / m_before
         info["iter"] = it
         if D is not None:
-            info.update(state.apply_translation(D, anchor, cfg.optimise_scale))
+            info.update(state.apply_translation(D, anchor, cfg.optimise_scale,
+                                                cfg.depth_only_registration))  # fmt: skip
         info["metric_scale"] = state.m
         registrations.append(info)
         phase.patience.reset()

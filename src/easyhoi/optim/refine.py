@@ -36,12 +36,20 @@ import torch
 from easyhoi.config import OptimConfig, RefineStageConfig
 from easyhoi.hand.regions import DIGIT_JOINTS
 from easyhoi.hoi import StageResult
+from easyhoi.optim.adam import Adam
+from easyhoi.optim.hand_terms import keypoint_loss, pose_prior_loss
 from easyhoi.optim.loop import StageLoop, restore, run_phases, snapshot
 from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
 from easyhoi.optim.state import Scene, hard_iou
 from easyhoi.structures import Camera, HandParams
 
-__all__ = ["refine_terms", "fit_refine"]
+__all__ = ["PUSH_OUT_BALANCE", "PUSH_OUT_MAX", "fit_refine", "push_out", "refine_terms"]
+
+#: :func:`push_out` stops when the depth-weighted normals cancel to below this fraction of the
+#: summed depths (penetration from opposite sides: moving the whole hand cannot free it).
+PUSH_OUT_BALANCE = 0.3
+#: Largest total move of :func:`push_out`, normalised object units (a fifth of the object).
+PUSH_OUT_MAX = 0.2
 
 
 def refine_terms(
@@ -67,12 +75,27 @@ def refine_terms(
 
     Returns
     -------
-    dict of str -> () tensor: the unweighted terms present (``mask``, ``penetration``,
-    ``contact``, ``reg``) and ``total`` (weighted sum).
+    dict of str -> () tensor: the unweighted terms present (``keypoints``, ``prior``, ``mask``,
+    ``penetration``, ``contact``, ``reg``) and ``total`` (weighted sum).
     """
-    verts = scene.hand_model(params).vertices[0] / metric_scale
+    out = scene.hand_model(params)
+    verts = out.vertices[0] / metric_scale
     terms: dict[str, torch.Tensor] = {}
     total = verts.new_zeros(())
+    kp = scene.keypoints
+    if cfg.keypoint_weight > 0 and kp is not None:
+        H, W = scene.image_size
+        uv, _ = camera.resized(W, H).project(out.keypoints[0] / metric_scale)
+        terms["keypoints"] = keypoint_loss(uv, kp.points, kp.size, cfg.keypoint_sigma,
+                                           kp.confidence)  # fmt: skip
+        total = total + cfg.keypoint_weight * terms["keypoints"]
+    if cfg.prior_weight > 0:
+        # the axes are the right model's: a left hand's articulation is mirrored first
+        sign = [1.0, -1.0, -1.0] if params.side == "left" else [1.0] * 3
+        flip = torch.tensor(sign, dtype=params.pose.dtype, device=params.pose.device).repeat(15)
+        terms["prior"] = pose_prior_loss(params.pose * flip, scene.flexion_axes(),
+                                         reference=theta0 * flip)  # fmt: skip
+        total = total + cfg.prior_weight * terms["prior"]
     if cfg.hand_mask_weight > 0:
         _, visible, _ = scene.hand_silhouettes(verts, camera)
         terms["mask"] = soft_iou_loss(visible, masks["hand"])
@@ -111,6 +134,55 @@ def contact_radii(scene: Scene, cfg: RefineStageConfig):
     )
 
 
+def push_out(
+    scene: Scene, params: HandParams, metric_scale: float, cfg: RefineStageConfig
+) -> tuple[torch.Tensor, dict]:
+    """Rigid move that takes a penetrating hand out of the object along the object's normal.
+
+    Up to ``push_out_steps`` times: the vertices deeper than ``penetration_threshold`` give the
+    direction (the SDF gradients at them, weighted by their depth, summed and normalised) and
+    the hand moves along it by the largest depth. Stops when nothing penetrates, when a move
+    does not reduce the summed depth of the penetrating vertices (it is undone), or when the
+    gradients cancel (a hand wrapped round the object: only its fingers can open), or after
+    :data:`PUSH_OUT_MAX` normalised units in all. The articulation is untouched, so a grasp that
+    sank in as a whole (a depth or scale error) comes out without bending fingers.
+
+    Returns
+    -------
+    (3,) translation in object units and a JSON-ready note (steps, distance in normalised units).
+    """
+    with torch.no_grad():
+        verts = scene.hand_model(params).vertices[0] / metric_scale
+    total = torch.zeros(3, dtype=verts.dtype, device=verts.device)
+    steps, last = 0, None
+    for _ in range(cfg.push_out_steps + 1):
+        v = (verts + total).detach().requires_grad_(True)
+        d = scene.sdf(v, cfg.sdf_resolution)
+        inside = d < cfg.penetration_threshold
+        sunk = float((-d[inside]).detach().sum())
+        if last is not None and sunk >= last[0]:  # the move made it worse: undo it, stop
+            total, steps = last[1], steps - 1
+            break
+        if not bool(inside.any()) or steps == cfg.push_out_steps:
+            break
+        last = (sunk, total)
+        (grad,) = torch.autograd.grad(d[inside].sum(), v)
+        depth = -d[inside].detach()
+        normals = grad[inside] / grad[inside].norm(dim=1, keepdim=True).clamp_min(1e-12)
+        n = (normals * depth[:, None]).sum(0)
+        norm = float(n.norm())
+        if norm < PUSH_OUT_BALANCE * float(depth.sum()):
+            break
+        step = float(depth.max()) * scene.extent
+        total = total + n / norm * step
+        steps += 1
+        if float(total.norm()) > PUSH_OUT_MAX * scene.extent:
+            total = total * (PUSH_OUT_MAX * scene.extent / float(total.norm()))
+            break
+    note = {"steps": steps, "distance": float(total.norm()) / scene.extent}
+    return total.detach(), note
+
+
 def fit_refine(
     scene: Scene,
     params0: HandParams,
@@ -138,7 +210,8 @@ def fit_refine(
     p0 = params0.detach().to(dtype=dt)
     theta0 = (p0.pose if theta0 is None else theta0.to(dt)).detach().clone()
     go = p0.global_orient.clone().requires_grad_(cfg.optimise_global)
-    tr0 = p0.transl.clone()
+    push = push_out(scene, p0, metric_scale, cfg) if cfg.push_out_steps > 0 else None
+    tr0 = p0.transl.clone() if push is None else p0.transl + float(metric_scale) * push[0]
     unit = float(scene.extent) * float(metric_scale)  # metres per normalised object unit
     delta = torch.zeros_like(tr0).requires_grad_(cfg.optimise_global)
     pose = p0.pose.clone().requires_grad_(cfg.optimise_pose)
@@ -150,12 +223,19 @@ def fit_refine(
         groups.append({"params": [delta], "lr": lr_t})
     if cfg.optimise_pose:
         groups.append({"params": [pose], "lr": cfg.lr_pose})
-    opt = torch.optim.Adam(groups) if groups else None
+    opt = Adam(groups) if groups else None
     loop = StageLoop("refine", cfg.max_iters, optim_cfg.history_every, progress)
     current = lambda: p0.__class__(go, tr0 + unit * delta, pose, p0.betas, p0.side)  # noqa: E731
     camera = camera.detach().to(dt)
 
+    phases_begun = []
+
     def begin(frac):
+        # rigid_first: the first phase moves the hand as a whole (the articulation's step size
+        # is 0), so penetration is resolved by the hand's pose before any finger bends
+        if cfg.rigid_first and cfg.optimise_pose and opt is not None:
+            opt.param_groups[-1]["lr"] = 0.0 if not phases_begun else cfg.lr_pose
+        phases_begun.append(frac)
         h, w = scene.render_size(frac, optim_cfg.render_size)
         return scene.masks_at(h, w), camera.resized(w, h)
 
@@ -185,6 +265,7 @@ def fit_refine(
     with torch.no_grad():
         final = refine_terms(scene, params, metric_scale, theta0, cfg, cam, masks)
     extra = {
+        "push_out": None if push is None else push[1],
         "final_mask_iou": final_iou,
         "final_terms": {k: float(v) for k, v in final.items()},
         "best_iter": loop.best_iter,

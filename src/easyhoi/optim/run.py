@@ -37,6 +37,7 @@ from easyhoi.errors import EasyHOIError, InvalidInputError, OptimizationError
 from easyhoi.hoi import HOIInput, HOIResult, StageResult
 from easyhoi.optim.camera import fit_camera, initial_camera
 from easyhoi.optim.contact import ContactState, fit_contact, initial_hand
+from easyhoi.optim.hand_change import hand_change
 from easyhoi.optim.placement import camera_hand_to_object
 from easyhoi.optim.refine import fit_refine
 from easyhoi.optim.state import Scene, hard_iou
@@ -51,6 +52,12 @@ Progress = Callable[[str, int, int, dict], None]
 
 def _stage_error(name: str, exc: Exception) -> OptimizationError:
     return OptimizationError(f"stage {name!r} failed: {exc}")
+
+
+#: Plausibility entries that compare the result with the masks it was fitted to: they say how
+#: well the optimizer agreed with its own inputs, not whether those masks (and so the result)
+#: are right. Every display labels them as self-consistency, apart from the physical metrics.
+SELF_CONSISTENCY_KEYS = ("hand_mask_iou", "object_mask_iou")
 
 
 def plausibility(
@@ -172,6 +179,7 @@ def optimize(
         verts = hand_model(params).vertices[0].double().cpu().numpy() / m
     params, camera = params.to(device="cpu"), camera.to(device="cpu")
     stages = [_stage_on_cpu(s) for s in stages]
+    change = hand_change(hand_model, inp, params, camera, m)
     return HOIResult(
         hand_params=params,
         camera=camera,
@@ -186,6 +194,7 @@ def optimize(
         config=to_dict(config),
         plausibility=report,
         meta=dict(inp.meta),
+        hand_change=change,
     )
 
 

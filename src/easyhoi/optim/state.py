@@ -36,7 +36,7 @@ from easyhoi.structures import Camera
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SILHOUETTE_SIGMA", "Scene", "hard_iou"]
+__all__ = ["SILHOUETTE_SIGMA", "PhotoKeypoints", "Scene", "hard_iou"]
 
 #: Sharpness (pixels squared) of every soft silhouette of the optimizer. Smaller than the
 #: renderer's default (1 px^2): coverage is a probabilistic union that counts back faces, so at
@@ -52,6 +52,41 @@ SDF_PADDING = 0.3
 #: Voxels around the surface where the SDF grid is exact (penetration and contact terms act
 #: there); farther nodes carry exact signs and bounded values, and the build is ~5x faster.
 SDF_EXACT_BAND = 4.0
+
+
+@dataclass(frozen=True)
+class PhotoKeypoints:
+    """The 2D keypoint detector's evidence: 21 keypoints (OpenPose / MANO order, pixels of the
+    full photo), per-joint confidences in [0, 1] (1 where the detector gives none) and the
+    hand's size in the photo (the larger side of the keypoints' box, pixels)."""
+
+    points: torch.Tensor
+    confidence: torch.Tensor
+    size: float
+
+    @classmethod
+    def from_meta(cls, meta: dict, dtype: torch.dtype, device="cpu") -> PhotoKeypoints | None:
+        """From ``meta["keypoints2d"]`` (21 x 2) and optional ``meta["keypoints2d_confidence"]``
+        (21,); None when absent. Malformed values raise :class:`InvalidInputError`."""
+        raw = (meta or {}).get("keypoints2d")
+        if raw is None:
+            return None
+        pts = np.asarray(raw, dtype=np.float64)
+        if pts.shape != (21, 2) or not np.isfinite(pts).all():
+            raise InvalidInputError(
+                f"meta['keypoints2d'] must be 21 finite (u, v) pixels, got shape {pts.shape}"
+            )
+        conf = np.asarray(meta.get("keypoints2d_confidence", np.ones(21)), dtype=np.float64)
+        if conf.shape != (21,) or not np.isfinite(conf).all() or (conf < 0).any():
+            raise InvalidInputError("meta['keypoints2d_confidence'] must be 21 values >= 0")
+        size = float(np.ptp(pts, axis=0).max())
+        if not size > 0 or not conf.sum() > 0:
+            return None
+        return cls(
+            torch.as_tensor(pts, dtype=dtype, device=device),
+            torch.as_tensor(conf, dtype=dtype, device=device),
+            size,
+        )
 
 
 @dataclass
@@ -76,6 +111,8 @@ class Scene:
     image_size : (H, W)
     masks : dict of str -> (H, W) tensor
         Full-resolution float masks ``hand`` (M_h), ``object`` (M_o), ``amodal`` (M^_o).
+    keypoints : PhotoKeypoints or None
+        The detector's 2D hand keypoints (``HOIInput.meta["keypoints2d"]``), when given.
     """
 
     object_verts: torch.Tensor
@@ -88,9 +125,11 @@ class Scene:
     dtype: torch.dtype
     image_size: tuple[int, int]
     masks: dict
+    keypoints: PhotoKeypoints | None = None
     _mask_cache: dict = field(default_factory=dict, repr=False)
     _sdf_cache: dict = field(default_factory=dict, repr=False)
     _depth_cache: dict = field(default_factory=dict, repr=False)
+    _axes: torch.Tensor | None = field(default=None, repr=False)
 
     @classmethod
     def from_input(
@@ -127,7 +166,19 @@ class Scene:
             dtype=dtype,
             image_size=inp.size,
             masks=masks,
+            keypoints=PhotoKeypoints.from_meta(inp.meta, dtype, device),
         )
+
+    def flexion_axes(self) -> torch.Tensor:
+        """(15, 3) flexion axes of the hand model's joints (:func:`~easyhoi.hand.regions.
+        flexion_axes`, cached)."""
+        if self._axes is None:
+            from easyhoi.hand.regions import flexion_axes
+
+            self._axes = torch.as_tensor(
+                flexion_axes(self.hand_model), dtype=self.dtype, device=self.device
+            )
+        return self._axes
 
     @property
     def device(self) -> torch.device:

@@ -10,7 +10,7 @@ ground truth:
   (hand mask, penetration, regularization, contact); "full" is the run's own refine snapshot;
 * **object input**: a second full run on the same scene whose object is the GT shape (same
   canonical rotation and scale, no deformation), next to the estimator's hand before any
-  optimization;
+  optimization (its stage snapshots give the hand errors per stage with the true object);
 * **object quality**: C.D. / F@5mm / F@10mm (MOHO convention) of the input object at the
   result's metric scale against the GT object;
 * **runtime**: seconds per stage of ``fast`` on every scene and of ``paper`` on the first
@@ -93,6 +93,11 @@ class BenchmarkSettings:
     """Scenes rendered in the gallery (the first ones)."""
     chamfer_samples: int = 30000
     """Surface samples per mesh of C.D. / F-scores."""
+    sd_cone: bool = True
+    """Also simulate the gravity cone of each hand (``sd_cone_cm``, 7 simulations instead of 1)."""
+    loss_ablation: bool = True
+    """Re-run stage 3 without each loss term (the loss ablation table; 4 refinements and their
+    simulations per scene)."""
 
     def __post_init__(self):
         if self.scenes < 1 or self.paper_scenes < 0 or self.paper_cap < 0 or self.sd_steps < 1:
@@ -150,30 +155,36 @@ def evaluate_scene(
     res = optimize(inp, fast)
     steps = settings.sd_steps
     row: dict = {"seed": seed, "kind": kind, "grasp": grasp, "gravity_sd_cm": scene.gravity_sd_cm}
-    row["stages"] = _stage_metrics(truth, res, steps)
-    row["ground_truth"] = evaluate_hand(truth, *gt_hand_state(scene, inp), steps)
+    cone = settings.sd_cone
+    row["stages"] = _stage_metrics(truth, res, steps, cone=cone)
+    row["ground_truth"] = evaluate_hand(truth, *gt_hand_state(scene, inp), steps, cone=cone)
     # loss ablation: stage 3 from the contact snapshot
     opt_scene = OptScene.from_input(inp, load_hand_model(inp.hand_model), fast.torch_dtype)
     contact = next(s for s in res.stages if s.name == "contact")
     abl = {"full": row["stages"]["refine"]}
     for name, key in LOSS_ABLATIONS.items():
-        if key is None:
+        if key is None or not settings.loss_ablation:
             continue
         cfg = with_overrides(fast, {f"refine.{key}": 0.0})
         params = refine_from_contact(inp, res, cfg, opt_scene)
-        abl[name] = evaluate_hand(truth, params, float(contact.metric_scale), contact.camera, steps)
+        abl[name] = evaluate_hand(
+            truth, params, float(contact.metric_scale), contact.camera, steps, cone=cone
+        )
     row["loss_ablation"] = abl
     # the same scene with the GT object shape (same canonical frame, no deformation)
     gt_level = replace(level, object=replace(level.object, shape="oracle", amplitude=0.0))
     inp_gt = scene.to_hoi_input(gt_level, seed=seed)
     truth_gt = _truth(scene, inp_gt, fast)
     res_gt = optimize(inp_gt, fast)
+    gt_stages = _stage_metrics(truth_gt, res_gt, steps, simulate=False)
+    gt_stages["refine"] = evaluate_hand(
+        truth_gt, res_gt.hand_params, res_gt.metric_scale, res_gt.camera, steps, cone=cone
+    )
     row["object_input"] = {
         "estimator": _estimator_hand(truth, inp),
         "reconstructed": row["stages"]["refine"],
-        "gt": evaluate_hand(
-            truth_gt, res_gt.hand_params, res_gt.metric_scale, res_gt.camera, steps
-        ),
+        "gt": gt_stages["refine"],
+        "gt_stages": gt_stages,
     }
     row["object_quality"] = {
         "reconstructed": _object_quality(
@@ -188,7 +199,7 @@ def evaluate_scene(
     if paper is not None:
         res_p = optimize(inp, paper)
         row["paper"] = evaluate_hand(
-            truth, res_p.hand_params, res_p.metric_scale, res_p.camera, steps
+            truth, res_p.hand_params, res_p.metric_scale, res_p.camera, steps, cone=cone
         )
         row["paper_stops"] = {s.name: [s.iterations, s.stop_reason] for s in res_p.stages}
         timings["paper"] = dict(res_p.timings)

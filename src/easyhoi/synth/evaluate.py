@@ -2,7 +2,7 @@
 
 :func:`evaluate_hand` measures one hand against the ground truth of a scene (units and frames:
 :mod:`easyhoi.synth.benchmark`); :func:`gt_hand_state` gives the GT hand as a result would hold
-it; :func:`refine_from_contact` re-runs stage 3 for the loss ablation; the private helpers
+it; :func:`refine_from_contact` re-runs stage 3 for the loss ablation; the private functions
 measure the estimator's hand, the input object's quality and every stage snapshot of a run.
 """
 
@@ -40,6 +40,7 @@ class _Truth:
     joints: np.ndarray  # (21, 3) world, metres
     verts: np.ndarray  # (V, 3) world, metres
     joints_cam: np.ndarray  # (21, 3) GT camera frame, metres
+    keypoints_2d: np.ndarray  # (21, 2) GT pixels
     verts_cam: np.ndarray  # (V, 3) GT camera frame, metres
     opt_scene: object  # easyhoi.optim.state.Scene with the GT masks
     render_size: int
@@ -72,6 +73,7 @@ def _truth(scene, inp, cfg: OptimConfig) -> _Truth:
         joints=np.asarray(scene.keypoints_3d),
         verts=np.asarray(scene.grasp.vertices),
         joints_cam=out.keypoints[0].numpy(),
+        keypoints_2d=np.asarray(scene.keypoints_2d, dtype=np.float64),
         verts_cam=out.vertices[0].numpy(),
         opt_scene=OptScene.from_input(gt_inp, model, cfg.torch_dtype),
         render_size=cfg.render_size,
@@ -103,7 +105,22 @@ def _mask_ious(truth: _Truth, v_obj: torch.Tensor, camera) -> tuple[float, float
         )
 
 
-def evaluate_hand(truth: _Truth, params: HandParams, m: float, camera, sd_steps: int) -> dict:
+def _kp2d_px(truth: _Truth, keypoints: np.ndarray, camera) -> float:
+    """Mean pixel distance of ``keypoints`` (world of ``camera``) reprojected vs the GT's."""
+    with torch.no_grad():
+        uv, _ = camera.detach().to(torch.float64).project(torch.as_tensor(keypoints))
+    return float(np.linalg.norm(uv.numpy() - truth.keypoints_2d, axis=1).mean())
+
+
+def evaluate_hand(
+    truth: _Truth,
+    params: HandParams,
+    m: float,
+    camera,
+    sd_steps: int,
+    simulate: bool = True,
+    cone: bool = True,
+) -> dict:
     """Metrics of one hand (metric object frame, ``m`` metres per object unit) vs the truth.
 
     Returns a dict (lengths in cm, volumes in cm^3):
@@ -123,8 +140,13 @@ def evaluate_hand(truth: _Truth, params: HandParams, m: float, camera, sd_steps:
       grid) and ``iv_obman_cm3`` (ObMan voxels), ``pen_cm`` (deepest hand vertex inside),
       ``contact_cm`` (signed distance of the closest hand vertex to the surface, < 0 inside),
       ``in_contact`` (a vertex inside or within 5 mm);
+    * ``kp2d_px``: mean distance (pixels) of the 21 keypoints reprojected through ``camera`` to
+      the GT keypoints in the photo;
     * ``hand_iou`` / ``object_iou``: visible hand vs the GT M_h, object vs the GT amodal mask;
     * ``scale_err_pct``: |m / true m - 1| in %.
+
+    ``simulate=False`` returns the hand errors only (``mpjpe_*``, ``mpvpe_*``, ``kp2d_px``);
+    ``cone=False`` simulates the untilted gravity only (``sd_cone_cm`` None).
     """
     from easyhoi.metrics.interaction import _signed_depths
 
@@ -132,6 +154,17 @@ def evaluate_hand(truth: _Truth, params: HandParams, m: float, camera, sd_steps:
     V, K = _hand_out(model, params)
     A, b = truth.world_from_canonical[:3, :3], truth.world_from_canonical[:3, 3]
     Vw, Kw = (V / m) @ A.T + b, (K / m) @ A.T + b
+    R = camera.R.detach().double().numpy()
+    t = camera.t.detach().double().numpy() * m
+    Vc, Kc = V @ R.T + t, K @ R.T + t
+    errors = {
+        **_hand_errors(truth, K, V, truth.joints, truth.verts, Kc, Vc),
+        "mpjpe_world_cm": metrics.mpjpe(Kw, truth.joints),
+        "mpvpe_world_cm": metrics.mpvpe(Vw, truth.verts),
+        "kp2d_px": _kp2d_px(truth, K / m, camera),
+    }
+    if not simulate:
+        return errors
     hand = trimesh.Trimesh(V, model.faces_for(params.side).numpy(), process=False)
     obj = truth.opt_scene.watertight.copy()
     obj.apply_scale(m)
@@ -139,18 +172,14 @@ def evaluate_hand(truth: _Truth, params: HandParams, m: float, camera, sd_steps:
     signed = np.where(inside, -dist, dist)
     hand_iou, object_iou = _mask_ious(truth, torch.as_tensor(V / m), camera)
     # the cone's first direction is the untilted gravity: its entry is the published S.D.
+    azimuths = SD_CONE_AZIMUTHS if cone else 0
     sd_cone, sd_per = metrics.cone_displacement(
-        hand, obj, truth.gravity_obj, SD_CONE_TILT_DEG, SD_CONE_AZIMUTHS, steps=sd_steps
+        hand, obj, truth.gravity_obj, SD_CONE_TILT_DEG, azimuths, steps=sd_steps
     )
-    R = camera.R.detach().double().numpy()
-    t = camera.t.detach().double().numpy() * m
-    Vc, Kc = V @ R.T + t, K @ R.T + t
     return {
-        **_hand_errors(truth, K, V, truth.joints, truth.verts, Kc, Vc),
-        "mpjpe_world_cm": metrics.mpjpe(Kw, truth.joints),
-        "mpvpe_world_cm": metrics.mpvpe(Vw, truth.verts),
+        **errors,
         "sd_cm": sd_per[0],
-        "sd_cone_cm": sd_cone,
+        "sd_cone_cm": sd_cone if cone else None,
         "iv_cm3": metrics.intersection_volume(hand, obj, method="solid"),
         "iv_obman_cm3": metrics.intersection_volume(hand, obj, method="obman"),
         "pen_cm": float(dist[inside].max() * 100.0) if inside.any() else 0.0,
@@ -163,9 +192,16 @@ def evaluate_hand(truth: _Truth, params: HandParams, m: float, camera, sd_steps:
 
 
 def _estimator_hand(truth: _Truth, inp) -> dict:
-    """The estimator's hand (camera frame) vs the GT hand in that camera: the "HaMeR" row."""
+    """The estimator's hand (camera frame) vs the GT hand in that camera: the "HaMeR" row;
+    ``detector_kp2d_px``: the 2D keypoint detector's error (``meta["keypoints2d"]``)."""
     V, K = _hand_out(truth.model, inp.hand_params)
-    return _hand_errors(truth, K, V, truth.joints_cam, truth.verts_cam, K, V)
+    out = _hand_errors(truth, K, V, truth.joints_cam, truth.verts_cam, K, V)
+    out["kp2d_px"] = _kp2d_px(truth, K, inp.hand_camera)
+    det = inp.meta.get("keypoints2d")
+    if det is not None:
+        d = np.asarray(det, dtype=np.float64) - truth.keypoints_2d
+        out["detector_kp2d_px"] = float(np.linalg.norm(d, axis=1).mean())
+    return out
 
 
 def _hand_errors(truth: _Truth, K, V, gt_joints, gt_verts, Kc, Vc) -> dict:
@@ -244,9 +280,12 @@ def _object_quality(inp, m: float, truth: _Truth, gt_mesh, n: int) -> dict:
     return out
 
 
-def _stage_metrics(truth, result, steps: int) -> dict:
+def _stage_metrics(truth, result, steps: int, simulate: bool = True, cone: bool = True) -> dict:
+    """:func:`evaluate_hand` of every stage snapshot of ``result``."""
     out = {}
     for st in result.stages:
         cam = st.camera if st.camera is not None else result.camera
-        out[st.name] = evaluate_hand(truth, st.hand_params, float(st.metric_scale), cam, steps)
+        out[st.name] = evaluate_hand(
+            truth, st.hand_params, float(st.metric_scale), cam, steps, simulate, cone
+        )
     return out

@@ -55,12 +55,16 @@ from easyhoi.structures import Camera, HandParams
 
 @dataclass(frozen=True)
 class HandNoise:
-    """Hand estimator error. Angles in radians; ``depth`` and ``size`` relative (std)."""
+    """Hand estimator error. Angles in radians; ``depth`` and ``size`` relative (std);
+    ``keypoints`` the 2D keypoint detector's error (std per coordinate, as a fraction of the
+    hand's size in the photo) on visible joints, :data:`OCCLUDED_KEYPOINT_FACTOR` times more on
+    joints the object hides."""
 
     articulation: float = 0.0
     rotation: float = 0.0
     depth: float = 0.0
     size: float = 0.0
+    keypoints: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -112,19 +116,23 @@ PERTURBATION_LEVELS: dict[str, Perturbation] = {
     "none": Perturbation("none"),
     "low": Perturbation(
         "low",
-        HandNoise(articulation=0.04, rotation=np.radians(2), depth=0.02, size=0.02),
+        HandNoise(
+            articulation=0.04, rotation=np.radians(2), depth=0.02, size=0.02, keypoints=0.015
+        ),
         ObjectNoise(rotate=True, scale_range=_SCALES),
         MaskNoise(jitter_px=1.0),
     ),
     "hamer": Perturbation(
         "hamer",
-        HandNoise(articulation=0.10, rotation=np.radians(5), depth=0.05, size=0.04),
+        HandNoise(articulation=0.10, rotation=np.radians(5), depth=0.05, size=0.04, keypoints=0.03),
         ObjectNoise(rotate=True, scale_range=_SCALES, shape="smooth", amplitude=0.02),
         MaskNoise(jitter_px=2.0, holes=1, hole_radius_px=3.0, bleed_px=2),
     ),
     "high": Perturbation(
         "high",
-        HandNoise(articulation=0.20, rotation=np.radians(10), depth=0.10, size=0.08),
+        HandNoise(
+            articulation=0.20, rotation=np.radians(10), depth=0.10, size=0.08, keypoints=0.06
+        ),
         ObjectNoise(rotate=True, scale_range=_SCALES, shape="coarse", coarse="hull"),
         MaskNoise(jitter_px=4.0, holes=3, hole_radius_px=4.0, bleed_px=5),
     ),
@@ -197,6 +205,30 @@ def perturb_hand(params: HandParams, noise: HandNoise, model, rng: np.random.Gen
     out = transform_hand(out, dR, wrist - dR @ wrist, model)
     scale = 1.0 + float(rng.normal(0, noise.depth))
     return transform_hand(out, np.eye(3), (scale - 1.0) * wrist, model)
+
+
+#: Detector noise multiplier and confidence of a keypoint hidden by the object (detectors guess
+#: hidden joints from the hand's shape: larger errors, and they report lower confidence).
+OCCLUDED_KEYPOINT_FACTOR = 3.0
+OCCLUDED_KEYPOINT_CONFIDENCE = 0.3
+
+
+def detect_keypoints(scene, noise: HandNoise, rng: np.random.Generator):
+    """A 2D keypoint detector's output on the scene: ``(keypoints (21, 2) pixels, confidence
+    (21,))``, the GT keypoints plus Gaussian noise of ``noise.keypoints`` times the hand's size
+    (the larger side of the GT keypoints' box), larger and less confident where hidden."""
+    kp = np.asarray(scene.keypoints_2d, dtype=np.float64)
+    with torch.no_grad():
+        z = scene.camera.world_to_camera(torch.tensor(np.asarray(scene.keypoints_3d)))[:, 2].numpy()
+    H, W = scene.depth.shape
+    col = np.clip(kp[:, 0].astype(int), 0, W - 1)
+    row = np.clip(kp[:, 1].astype(int), 0, H - 1)
+    hidden = scene.object_mask[row, col] & (scene.depth[row, col] < z - 0.005)
+    size = float(np.ptp(kp, axis=0).max())
+    std = noise.keypoints * size * np.where(hidden, OCCLUDED_KEYPOINT_FACTOR, 1.0)
+    out = kp + rng.normal(size=kp.shape) * std[:, None]
+    conf = np.where(hidden, OCCLUDED_KEYPOINT_CONFIDENCE, 1.0)
+    return out, conf
 
 
 # ----------------------------------------------------------------------------------------------
@@ -330,7 +362,9 @@ def make_hoi_input(scene, perturbation="none", seed: int = 0, rotate: bool | Non
     Returns:
         HOIInput: Hand in the estimator camera (= the GT camera's intrinsics, identity extrinsics);
             masks M_h (visible hand), M_o (visible object), M^_o (amodal object) after the mask
-            errors; ``complete_hand_mask`` None. ``meta["gt"]`` holds the ground truth:
+            errors; ``complete_hand_mask`` None. ``meta["keypoints2d"]`` and
+            ``meta["keypoints2d_confidence"]``: the detector's keypoints
+            (:func:`detect_keypoints`). ``meta["gt"]`` holds the ground truth:
             ``canonical_from_world`` (4x4), ``metres_per_unit``, ``hand_params_world``,
             ``hand_params_camera``, ``camera`` (world-to-camera), plus the level's name.
     """
@@ -351,6 +385,7 @@ def make_hoi_input(scene, perturbation="none", seed: int = 0, rotate: bool | Non
     hand_m = perturb_mask(scene.hand_mask, p.mask, streams[2], other=scene.object_mask)
     obj_m = perturb_mask(scene.object_mask, p.mask, streams[3], other=scene.hand_mask)
     amodal = perturb_mask(scene.object_amodal, p.mask, streams[4], other=scene.hand_mask)
+    keypoints, confidence = detect_keypoints(scene, p.hand, np.random.default_rng([seed, 2024, 5]))
     hand_camera = Camera(cam.K.clone(), torch.eye(3, dtype=cam.K.dtype),
                          torch.zeros(3, dtype=cam.K.dtype), cam.width, cam.height)  # fmt: skip
     meta = {
@@ -360,6 +395,8 @@ def make_hoi_input(scene, perturbation="none", seed: int = 0, rotate: bool | Non
         "perturbation_seed": int(seed),
         "object_kind": scene.object.kind,
         "grasp_type": scene.grasp.grasp_type,
+        "keypoints2d": keypoints.tolist(),
+        "keypoints2d_confidence": confidence.tolist(),
         "gt": {
             "canonical_from_world": M.tolist(),
             "metres_per_unit": float(1.0 / np.linalg.norm(M[:3, 0])),
@@ -387,6 +424,7 @@ __all__ = [
     "MaskNoise",
     "ObjectNoise",
     "Perturbation",
+    "detect_keypoints",
     "get_perturbation",
     "make_hoi_input",
     "mask_iou",

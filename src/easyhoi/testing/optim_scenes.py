@@ -36,7 +36,7 @@ DEFAULT_VIEWS = {"cylinder": (-0.6, -1.0, 0.8), "box": (-0.5, 0.3, 1.0)}
 
 
 @dataclass
-class SynthScene:
+class ToyScene:
     inp: HOIInput
     gt_camera: Camera  # object camera (object frame, object units), full image size
     gt_hand: HandParams  # metric object frame
@@ -76,7 +76,7 @@ def make_scene(
     pose_noise: float = 0.04,
     canon_tilt=(0.12, -0.18, 0.08),
     grasp: float = 0.9,
-) -> SynthScene:
+) -> ToyScene:
     """Build a scene (deterministic for a seed). Noise: radians / fraction of depth / radians."""
     rng = np.random.default_rng(seed)
     model = load_hand_model("open", dtype=torch.float64)
@@ -166,4 +166,4 @@ def make_scene(
         complete_hand_mask=complete,
         meta={"synthetic": kind, "seed": seed},
     )
-    return SynthScene(inp, gt_cam, gt_hand, m_gt, p_hcam, cam_w, model, obj)
+    return ToyScene(inp, gt_cam, gt_hand, m_gt, p_hcam, cam_w, model, obj)

@@ -1,0 +1,155 @@
+"""Real photos with reference 2D keypoints: the detector's keypoints against the final hand's.
+
+For every photo of a COCO keypoint file (21 hand keypoints per image, OpenPose / MANO order),
+the whole pipeline runs (``easyhoi.pipeline.reconstruct_photo``, the ``fast`` preset, seed 0)
+and two sets of 2D keypoints are compared with the reference:
+
+* the detector's (``HOIInput.meta["keypoints2d"]``, what the hand estimate was fitted to);
+* the final hand's, its 21 keypoints reprojected through the fitted object camera.
+
+Per image: mean pixel error and PCK@0.05 / PCK@0.1 (a keypoint within 5 % / 10 % of the larger
+side of the reference keypoints' box), and the ``hand_change`` summary of the result (how far
+the optimizer moved the hand from the estimator). The optimizer must not make the hand worse
+in the photo than the detector's keypoints: ``final <= detector`` per image is the check.
+
+Data: ``../shared/data/keypoints-dev`` (8 FreiHAND crops, ``test_freihand.json``) and any
+COCO file under ``tests/data/keypoint_refs/`` (photos beside it). Missing folders are skipped.
+
+Usage::
+
+    python benchmarks/bench_keypoints.py                 # every data set found
+    python benchmarks/bench_keypoints.py --limit 2       # first 2 photos of each
+    python benchmarks/bench_keypoints.py --coco FILE.json --images DIR
+
+Results: a table on stdout and ``benchmarks/results/bench_keypoints.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+DATASETS = (
+    (ROOT.parent / "shared" / "data" / "keypoints-dev" / "test_freihand.json", None),
+    (Path("/work/shared/data/keypoints-dev/test_freihand.json"), None),
+)
+
+
+def load_coco(path: Path, images: Path | None = None) -> list[tuple[Path, np.ndarray]]:
+    """(photo path, (21, 2) reference keypoints) per annotated image of a COCO keypoint file."""
+    data = json.loads(path.read_text())
+    folder = images or path.parent
+    names = {im["id"]: im["file_name"] for im in data["images"]}
+    out = []
+    for ann in data["annotations"]:
+        kp = np.asarray(ann["keypoints"], dtype=np.float64).reshape(-1, 3)
+        if kp.shape[0] != 21:
+            continue
+        out.append((folder / names[ann["image_id"]], kp[:, :2]))
+    return sorted(out, key=lambda x: x[0].name)
+
+
+def errors(pred: np.ndarray, ref: np.ndarray) -> dict:
+    """Mean pixel error and PCK at 5 % / 10 % of the reference box's larger side."""
+    d = np.linalg.norm(np.asarray(pred, dtype=np.float64) - ref, axis=1)
+    size = float(np.ptp(ref, axis=0).max())
+    return {
+        "mean_px": float(d.mean()),
+        "pck05": float((d <= 0.05 * size).mean()),
+        "pck10": float((d <= 0.1 * size).mean()),
+    }
+
+
+def final_keypoints(result) -> np.ndarray:
+    """(21, 2) keypoints of the result's hand reprojected through its camera."""
+    import torch
+
+    from easyhoi.hand import load_hand_model
+
+    model = load_hand_model(result.hand_model, dtype=torch.float64)
+    with torch.no_grad():
+        k = model(result.hand_params.to(dtype=torch.float64)).keypoints[0] / result.metric_scale
+        uv, _ = result.camera.detach().to(torch.float64).project(k)
+    return uv.numpy()
+
+
+def run_photo(photo: Path, ref: np.ndarray) -> dict:
+    from easyhoi.config import get_preset
+    from easyhoi.errors import EasyHOIError
+    from easyhoi.pipeline import reconstruct_photo
+
+    t0 = time.perf_counter()
+    try:
+        rec = reconstruct_photo(photo, None, get_preset("fast"), seed=0)
+    except EasyHOIError as exc:
+        return {"photo": photo.name, "error": f"{type(exc).__name__}: {exc}"}
+    det = rec.inp.meta.get("keypoints2d")
+    row = {"photo": photo.name, "seconds": time.perf_counter() - t0}
+    if det is not None:
+        row["detector"] = errors(np.asarray(det), ref)
+    row["final"] = errors(final_keypoints(rec.result), ref)
+    row["hand_change"] = {
+        k: v for k, v in rec.result.hand_change.items() if k.startswith(("mean", "max"))
+    }
+    return row
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--coco", type=Path, help="a COCO keypoint file (default: the data sets)")
+    ap.add_argument("--images", type=Path, help="folder of its photos (default: beside it)")
+    ap.add_argument("--limit", type=int, default=0, help="first N photos of each set (0: all)")
+    ap.add_argument("--out", type=Path, default=RESULTS / "bench_keypoints.json")
+    args = ap.parse_args(argv)
+    import torch
+
+    torch.set_num_threads(1)
+    sets = [(args.coco, args.images)] if args.coco else list(DATASETS)
+    sets += [(p, None) for p in sorted((ROOT / "tests" / "data" / "keypoint_refs").glob("*.json"))]
+    rows, seen = [], set()
+    for coco, images in sets:
+        if coco is None or not coco.exists() or coco.resolve() in seen:
+            continue
+        seen.add(coco.resolve())
+        items = load_coco(coco, images)
+        for photo, ref in items[: args.limit or None]:
+            row = run_photo(photo, ref)
+            row["set"] = coco.name
+            rows.append(row)
+            print(_line(row), flush=True)
+    if not rows:
+        print("no keypoint data found", file=sys.stderr)
+        return 1
+    ok = [r for r in rows if "detector" in r and "final" in r]
+    worse = [r["photo"] for r in ok if r["final"]["mean_px"] > r["detector"]["mean_px"]]
+    summary = {
+        "photos": len(rows),
+        "detector_mean_px": float(np.mean([r["detector"]["mean_px"] for r in ok])) if ok else None,
+        "final_mean_px": float(np.mean([r["final"]["mean_px"] for r in ok])) if ok else None,
+        "final_worse_than_detector": worse,
+    }
+    print(json.dumps(summary, indent=1))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"summary": summary, "photos": rows}, indent=1))
+    return 0
+
+
+def _line(row: dict) -> str:
+    if "error" in row:
+        return f"{row['photo']}: {row['error']}"
+    d, f = row.get("detector"), row["final"]
+    det = f"detector {d['mean_px']:.2f} px PCK@0.05 {d['pck05']:.2f}" if d else "detector n/a"
+    return (f"{row['photo']}: {det}; final {f['mean_px']:.2f} px PCK@0.05 {f['pck05']:.2f}; "
+            f"moved {row['hand_change'].get('mean_px', float('nan')):.2f} px, "
+            f"{row['hand_change'].get('mean_cm', float('nan')):.2f} cm")  # fmt: skip
+
+
+if __name__ == "__main__":
+    sys.exit(main())
