@@ -4,13 +4,14 @@ or filling the user's box.
 Points alone go to :func:`clicked_object`: GrabCut grown from the points
 (:mod:`easyhoi.perception.click`), the region proposals only when it collapses.
 
-With the proposals, a point says where the object is but not how far it extends. The hypotheses of the proposal
-hierarchy that contain every point form a chain from a single segment up to large parts of the
-crop. :func:`prompt_score` ranks them by whether they look like a whole object (outline
-contrast, solidity, size, not another hand); the best distinct levels (up to four) each seed
-GrabCut with the points as sure foreground and the hands as sure background (GrabCut's colour
-mixtures gather the parts of a textured object the proposals split), the refined masks are
-scored again and the best one is kept, restricted to the parts that contain the points.
+With the proposals, a point says where the object is but not how far it extends. The hypotheses
+of the proposal hierarchy that contain every point form a chain from a single segment up to
+large parts of the crop. :func:`prompt_score` ranks them by whether they look like a whole
+object (outline contrast, solidity, size, not another hand); the best distinct levels (up to
+four) each seed GrabCut with the points as sure foreground and the hands as sure background
+(GrabCut's colour mixtures gather the parts of a textured object the proposals split), the
+refined masks are scored again and the best one is kept, restricted to the parts that contain
+the points.
 
 A box says how far the object extends: hypotheses must lie mostly inside it and are favoured by
 how well they fill it (share of the region inside the box times share of the box it covers), and
