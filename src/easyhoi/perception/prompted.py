@@ -181,7 +181,6 @@ def clicked_object(
     alone: GrabCut grown from the points (:func:`easyhoi.perception.click.click_object`); the
     region proposals (``make_proposals``, costly) only when GrabCut collapses to the points.
     The hypotheses hold the output mask alone when no proposals were computed."""
-    h, w = img.shape[:2]
     obj, _ = click_object(img, scene, points, [], iterations, seed)
     if not collapsed(obj, scene):
         return obj, mask_hypothesis(obj, scene), 0, None
