@@ -15,13 +15,16 @@ the amodal outline in a working frame (:mod:`.common`) and scored::
   among the parametric ones, the fewer parameters the smaller the penalty.
 * ``edge_bonus`` — straight image edges where a fitted box's faces meet
   (:func:`.cuboid.edge_evidence`): a box shows its edges, a cylinder of the same outline none.
-* ``depth_penalty`` — the hand's aperture gives the object's thickness along the view where it
-  is gripped (:mod:`.hand_cues`). Families whose depth follows from the outline (round
-  cross-sections) are penalised by how far their thickness at the grip is from it (up to
-  :data:`DEPTH_WEIGHT` per factor of 2, times the cue's confidence); families with a free depth
-  take it. The slab's complexity drops to that of the parametric families when the cue says
-  the object is flat (thinner than :data:`FLAT_RATIO` of its inscribed width): an outline that a
-  grip shows to be thin is a slab, not a pillow.
+* ``depth_penalty`` — the hand gives the object's thickness along the view where it is gripped
+  (:mod:`.hand_cues`): the gap between the fingers in front of it and behind it. The gap is a
+  lower bound of the thickness (equal for flat faces pressed front to back), so a family whose
+  depth follows from its outline (round cross-sections) is penalised when it is thinner than
+  the gap (up to :data:`DEPTH_WEIGHT` per factor of 2, times the cue's confidence). A grip whose
+  gap is much smaller than the outline's inscribed width (:data:`FLAT_RATIO`) says the object
+  is flat: then the slab's complexity drops to :data:`FLAT_SLAB_COMPLEXITY` (an outline that a
+  grip shows to be thin is a slab, not a pillow) and round families thicker than 1.5 x the gap
+  are penalised too. Families with a free depth (slab, face-on cuboid, superquadric,
+  inflation) take the gap: thinned to a flat grip's, or thickened to the lower bound.
 
 :func:`fit_shape` returns the winner's mesh in source pixels with a record of every score.
 """

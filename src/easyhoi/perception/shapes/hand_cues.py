@@ -10,13 +10,15 @@ the fitted hand model — a hand model has a known size, so its keypoints are me
 * **Thickness.** A held object lies between the parts of the hand in front of it and the parts
   behind it. A keypoint that projects inside the object's outline is in front of the object when
   the hand is seen there (the visible hand mask covers it) and behind it when the object is seen
-  there. With both kinds present, the object's thickness along the view where it is gripped is
-  about ``median z(behind) - median z(in front)`` less the finger's soft tissue on both sides
-  (:data:`PAD_M` each; keypoints are joint centres), and the fingers touch it, so the bound is
-  also the estimate (medians: keypoints near the outline see the object's rim). It holds for any grasp type (pinch, power wrap, lateral) as long as the
-  hand holds the object from two sides along the view; when all the hand is on one side the cue
-  is absent. ``confidence`` grows with the number of keypoints on the lesser side
-  (1 with three or more).
+  there. With both kinds present, the gap ``median z(behind) - median z(in front)`` less the
+  finger's soft tissue on both sides (:data:`PAD_M` each; keypoints are joint centres) is the
+  object's thickness along the view where it is gripped when the fingers press flat faces (a
+  phone, a book, a box pinched front to back), and a lower bound of its largest thickness when
+  they touch a rounded object away from its front-most point. Medians: keypoints near the
+  outline see the object's rim. It holds for any grasp type (pinch, power wrap, lateral) as
+  long as the hand holds the object from both sides along the view; when the whole hand is on
+  one side the cue is absent. ``confidence`` grows with the number of keypoints on the lesser
+  side (1 with three or more).
 """
 
 from __future__ import annotations
