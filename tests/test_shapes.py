@@ -159,3 +159,54 @@ def test_deterministic_with_cues():
     b = SilhouetteReconstructor().reconstruct(None, m, **kw)
     np.testing.assert_array_equal(a.vertices, b.vertices)
     assert a.metadata["easyhoi"]["shape"] == b.metadata["easyhoi"]["shape"]
+
+
+def test_front_relief_chooses_between_families():
+    """A dish-shaped front (centre farther than the rim) is not a cylinder's bulge."""
+    from tests.test_perception_objects import rect
+
+    m = rect()
+    v, u = np.mgrid[0:200, 0:240] + 0.5
+    bulge = -np.sqrt(np.clip(40.0**2 - (v - 100) ** 2, 0, None))  # depth: the axis is closest
+    plain = SilhouetteReconstructor().reconstruct(None, m)
+    assert plain.metadata["easyhoi"]["method"] == "revolution"
+    from easyhoi.perception.objects import shape_mesh
+
+    same = shape_mesh(m, None, front=bulge)
+    scores = same.metadata["easyhoi"]["shape"]["scores"]
+    assert same.metadata["easyhoi"]["method"] == "revolution"
+    assert scores["revolution"]["relief_agreement"] > 0.9
+    dish = shape_mesh(m, None, front=-bulge)
+    scores = dish.metadata["easyhoi"]["shape"]["scores"]
+    assert scores["revolution"]["relief_agreement"] < -0.9
+    assert dish.metadata["easyhoi"]["method"] != "revolution"
+
+
+def test_depth_adapter_uses_the_hypotheses(tmp_path):
+    tf = pytest.importorskip("transformers")
+    import torch
+
+    from easyhoi.perception.adapters.depth import DepthObjectReconstructor
+
+    cfg = tf.DPTConfig(
+        hidden_size=32, num_hidden_layers=4, num_attention_heads=2, intermediate_size=37,
+        image_size=32, patch_size=8, backbone_out_indices=[0, 1, 2, 3],
+        neck_hidden_sizes=[8, 16, 16, 32], fusion_hidden_size=16,
+        reassemble_factors=[4, 2, 1, 0.5],
+    )  # fmt: skip
+    torch.manual_seed(0)
+    tf.DPTForDepthEstimation(cfg).save_pretrained(tmp_path)
+    proc = tf.DPTImageProcessor(size={"height": 32, "width": 32}, keep_aspect_ratio=False)
+    proc.save_pretrained(tmp_path)
+    m, hand, k2, k3 = phone_with_hand(0.01, s=1000.0)
+    img = np.random.default_rng(0).integers(0, 255, (*m.shape, 3), dtype=np.uint8)
+    rec = DepthObjectReconstructor(model_dir=tmp_path)
+    mesh = rec.reconstruct(img, m, visible_mask=m & ~hand, hand_mask=hand,
+                           hand_keypoints2d=k2, hand_keypoints3d=k3)  # fmt: skip
+    md = mesh.metadata["easyhoi"]
+    assert mesh.is_watertight and mesh.volume > 0
+    assert md["method"] == "depth"
+    assert all("relief_agreement" in s for s in md["shape"]["scores"].values())
+    # the random model's relief is noise: the grip still makes it a thin slab of 20 x 10 cm
+    assert md["shape"]["shape"] == "slab"
+    np.testing.assert_allclose(mesh.extents * md["meters_per_unit"], [0.2, 0.1, 0.01], rtol=0.15)

@@ -193,23 +193,43 @@ class SilhouetteReconstructor:
         -------
         trimesh.Trimesh, watertight, outward winding, canonical frame (module docs).
         """
-        from easyhoi.perception.shapes import fit_shape, hand_cues
-
         m = _check_mask(mask, image)
-        vis = _optional_mask(visible_mask, m.shape, "visible_mask")
-        occ = _optional_mask(hand_mask, m.shape, "hand_mask")
-        cues = hand_cues(hand_keypoints2d, hand_keypoints3d, m, occ)
-        img = None if image is None else np.asarray(image)
-        verts, faces, info = fit_shape(m, img, vis, occ, cues, self.families)
-        meta = dict(method=info["shape"], shape=info)
-        if cues is not None:
-            meta["hand_cues"] = cues.to_dict()
-        mesh = canonical_mesh(verts, faces, meta)
-        md = mesh.metadata["easyhoi"]
-        if cues is not None:
-            md["meters_per_unit"] = md["pixels_per_unit"] / cues.px_per_m
-            md["grip_depth_m"] = cues.grip_depth_m
-        return mesh
+        return shape_mesh(m, image, self.families, visible_mask, hand_mask, hand_keypoints2d,
+                          hand_keypoints3d)  # fmt: skip
+
+
+def shape_mesh(
+    mask: np.ndarray,
+    image: np.ndarray | None,
+    families: tuple[str, ...] | None = None,
+    visible_mask=None,
+    hand_mask=None,
+    hand_keypoints2d=None,
+    hand_keypoints3d=None,
+    front: np.ndarray | None = None,
+    method: str | None = None,
+) -> trimesh.Trimesh:
+    """The winning shape hypothesis as a canonical mesh (see :meth:`SilhouetteReconstructor.\
+reconstruct`); ``front`` is a depth model's front surface, ``method`` overrides the recorded
+    method name (default: the winning family)."""
+    from easyhoi.perception.shapes import FAMILIES, fit_shape, hand_cues
+
+    m = _check_mask(mask, image)
+    vis = _optional_mask(visible_mask, m.shape, "visible_mask")
+    occ = _optional_mask(hand_mask, m.shape, "hand_mask")
+    cues = hand_cues(hand_keypoints2d, hand_keypoints3d, m, occ)
+    img = None if image is None else np.asarray(image)
+    fam = FAMILIES if families is None else families
+    verts, faces, info = fit_shape(m, img, vis, occ, cues, fam, front=front)
+    meta = dict(method=method or info["shape"], shape=info)
+    if cues is not None:
+        meta["hand_cues"] = cues.to_dict()
+    mesh = canonical_mesh(verts, faces, meta)
+    md = mesh.metadata["easyhoi"]
+    if cues is not None:
+        md["meters_per_unit"] = md["pixels_per_unit"] / cues.px_per_m
+        md["grip_depth_m"] = cues.grip_depth_m
+    return mesh
 
 
 def _optional_mask(m, shape, name) -> np.ndarray | None:
@@ -230,6 +250,7 @@ __all__ = [
     "local_thickness",
     "object_crop",
     "revolution_mesh",
+    "shape_mesh",
     "signed_distance_2d",
 ]
 

@@ -25,6 +25,10 @@ the amodal outline in a working frame (:mod:`.common`) and scored::
   grip shows to be thin is a slab, not a pillow) and round families thicker than 1.5 x the gap
   are penalised too. Families with a free depth (slab, face-on cuboid, superquadric,
   inflation) take the gap: thinned to a flat grip's, or thickened to the lower bound.
+* ``relief`` (with a depth model) — :data:`FRONT_WEIGHT` x the correlation between the depth
+  map's front relief and the hypothesis's front surface on the visible object
+  (:func:`.common.relief_agreement`): a cylinder's front bulges, a slab's is flat, a box shows
+  a ridge where two faces meet.
 
 :func:`fit_shape` returns the winner's mesh in source pixels with a record of every score.
 """
@@ -32,15 +36,19 @@ the amodal outline in a working frame (:mod:`.common`) and scored::
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 from easyhoi.perception.shapes import cuboid, inflation, revolution, slab, superquadric, tube
 from easyhoi.perception.shapes.common import (
     Hypothesis,
     WorkFrame,
+    front_depth,
+    relief_agreement,
     scale_depth,
     signed_distance_2d,
     view_chord,
     work_frame,
+    work_resample,
 )
 from easyhoi.perception.shapes.hand_cues import HandCues, hand_cues
 
@@ -49,7 +57,7 @@ COMPLEXITY = {
     "revolution": 0.0,
     "superquadric": 0.005,
     "tube": 0.015,
-    "cuboid": 0.04,
+    "cuboid": 0.06,
     "slab": 0.09,
     "inflation": 0.08,
 }
@@ -61,6 +69,8 @@ FLAT_RATIO = 0.6
 FLAT_CONFIDENCE = 0.6
 #: Penalty per factor of 2 between a rigid family's thickness and the grip's (at confidence 1).
 DEPTH_WEIGHT = 0.08
+#: Weight of the agreement with a depth model's front relief (correlation in [-1, 1]).
+FRONT_WEIGHT = 0.08
 #: Bonus of the cuboid at full edge evidence.
 EDGE_WEIGHT = 0.05
 FAMILIES = tuple(COMPLEXITY)
@@ -93,6 +103,7 @@ def fit_shape(
     occluder: np.ndarray | None = None,
     cues: HandCues | None = None,
     families: tuple[str, ...] = FAMILIES,
+    front: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Fit every family to the amodal ``mask`` and keep the best (module docs).
 
@@ -104,6 +115,8 @@ def fit_shape(
     occluder : (H, W) bool hand mask, optional (unknown pixels outside ``mask``).
     cues : :class:`HandCues`, optional (thickness at the grip).
     families : the families to try.
+    front : (H, W) float front surface from a monocular depth model (larger = farther, any
+        scale and shift), optional: adds ``FRONT_WEIGHT x relief agreement`` to each score.
 
     Returns
     -------
@@ -129,9 +142,9 @@ def fit_shape(
         elif name == "tube":
             h = tube.fit(wf)
         elif name == "cuboid":
-            h = cuboid.fit(wf, depth=t_obs)
+            h = cuboid.fit(wf, depth=t_obs if flat else None, min_depth=t_obs)
         elif name == "slab":
-            h = slab.fit(wf, thickness=t_obs)
+            h = slab.fit(wf, thickness=t_obs if flat else None, min_thickness=t_obs)
         elif name == "inflation":
             h = inflation.fit(wf)
         else:
@@ -139,6 +152,10 @@ def fit_shape(
         if h is not None:
             hyps.append(h)
     radius = 0.06 * wf.mask.shape[0]
+    front_w = None
+    if front is not None:
+        front_w = work_resample(np.asarray(front, np.float64), wf, mask)
+        keep = ndimage.binary_erosion(wf.visible, iterations=2)
     for h in hyps:
         reasons = {}
         pen = COMPLEXITY[h.name]
@@ -167,6 +184,10 @@ def fit_shape(
                 factor = float(np.exp(conf * np.log(t_obs / d)))
                 h.verts = scale_depth(h.verts, factor)
                 reasons["depth_scaled"] = round(factor, 4)
+        if front_w is not None:
+            agree = relief_agreement(front_w, front_depth(h.verts, h.faces, wf.mask.shape), keep)
+            score += FRONT_WEIGHT * agree
+            reasons["relief_agreement"] = round(agree, 4)
         h.score = float(score)
         h.info.update(reasons, iou=round(h.iou, 4), complexity=pen, score=round(h.score, 4))
     order = {n: i for i, n in enumerate(FAMILIES)}

@@ -106,6 +106,21 @@ def work_frame(
     return WorkFrame(m, vis, weight, gray, float(scale), np.array([box[0], box[1]], float))
 
 
+def work_resample(values: np.ndarray, wf: WorkFrame, source_mask: np.ndarray) -> np.ndarray:
+    """(H, W) float source-pixel map -> working pixels (area average over the object only)."""
+    side = wf.mask.shape[0]
+    x0, y0 = (int(round(c)) for c in wf.offset)
+    n = int(round(side * wf.scale))
+    box = (x0, y0, x0 + n, y0 + n)
+    m = source_mask.astype(np.float32)
+    num = _resample((np.where(source_mask, values, 0.0)).astype(np.float32), box, (side, side))
+    den = _resample(m, box, (side, side))
+    out = np.full((side, side), np.inf)
+    ok = den > 1e-3
+    out[ok] = num[ok] / den[ok]
+    return out
+
+
 def rasterize(uv: np.ndarray, faces: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """(h, w) bool orthographic silhouette of a mesh with working-pixel ``uv`` (V, 2).
 
@@ -209,3 +224,46 @@ def scale_depth(verts: np.ndarray, factor: float) -> np.ndarray:
     zc = 0.5 * (out[:, 2].min() + out[:, 2].max())
     out[:, 2] = zc + (out[:, 2] - zc) * factor
     return out
+
+
+def front_depth(verts: np.ndarray, faces: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(h, w) z of the mesh's nearest surface per working pixel (``inf`` where missed).
+
+    Orthographic, through the project's z-buffer with a camera so far away (10^4 mesh sizes)
+    that its perspective is below rounding at the working resolution.
+    """
+    import torch
+
+    from easyhoi.render.raster import depth_map
+    from easyhoi.structures import Camera
+
+    size = float(np.ptp(verts, axis=0).max()) or 1.0
+    D = 1e4 * size
+    cam = Camera.from_focal(D, shape[1], shape[0], principal=(0.0, 0.0), dtype=torch.float64)
+    v = torch.as_tensor(np.asarray(verts, np.float64) + [0.0, 0.0, D])
+    z = depth_map(v, torch.as_tensor(np.asarray(faces, np.int64)), cam).numpy()
+    return z - D
+
+
+def relief_agreement(front: np.ndarray, hyp_front: np.ndarray, keep: np.ndarray) -> float:
+    """Correlation of two front surfaces after removing the best plane from each, on ``keep``.
+
+    A monocular depth map is known up to scale and shift (and a tilt where the camera is not
+    calibrated), so what it says about the shape is its relief: curvature, edges, steps.
+    0 when either relief is flat or fewer than 20 pixels are usable.
+    """
+    ok = keep & np.isfinite(hyp_front) & np.isfinite(front)
+    if ok.sum() < 20:
+        return 0.0
+    v, u = np.nonzero(ok)
+    A = np.stack([np.ones(len(u)), u, v], axis=1).astype(np.float64)
+
+    def detrend(z):
+        coef, *_ = np.linalg.lstsq(A, z, rcond=None)
+        return z - A @ coef
+
+    a, b = detrend(front[ok].astype(np.float64)), detrend(hyp_front[ok].astype(np.float64))
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if na < 1e-9 or nb < 1e-6 * max(np.abs(hyp_front[ok]).max(), 1.0):
+        return 0.0
+    return float(a @ b / (na * nb))

@@ -121,14 +121,22 @@ def edge_evidence(x: np.ndarray, wf: WorkFrame) -> tuple[float, float]:
     return ratio, float(np.clip((ratio - 1.0) / 2.0, 0.0, 1.0))
 
 
-def fit(wf: WorkFrame, depth: float | None = None, max_evals: int = 250) -> Hypothesis:
-    """The best-fitting box; ``depth`` (working pixels) sets a face-on box's depth extent."""
+def fit(
+    wf: WorkFrame,
+    depth: float | None = None,
+    min_depth: float | None = None,
+    max_evals: int = 250,
+) -> Hypothesis:
+    """The best-fitting box; ``depth`` (working pixels) sets a face-on box's depth extent
+    (default: the prior, at least ``min_depth``)."""
     m = wf.mask
     cnts, _ = cv2.findContours(m.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     pts = np.concatenate([c.reshape(-1, 2) for c in cnts]).astype(np.float32) + 0.5
     (cu, cv), (w, h), ang = cv2.minAreaRect(pts)
     w, h = max(w, 2.0), max(h, 2.0)
     d0 = PRIOR_DEPTH_RATIO * min(w, h) if depth is None else float(depth)
+    if depth is None and min_depth is not None:
+        d0 = max(d0, float(min_depth))
     log_d0 = np.log(max(d0, 1.0) / 2)
     base = np.array([cu, cv, 0.0, 0.0, np.radians(ang), np.log(w / 2), np.log(h / 2), log_d0])
 

@@ -33,10 +33,18 @@ def slab_h2(mask: np.ndarray, thickness: float) -> np.ndarray:
     return dc * (2 * rho - dc)
 
 
-def fit(wf: WorkFrame, thickness: float | None = None, max_faces: int = 6000) -> Hypothesis:
-    """The slab hypothesis; ``thickness`` in working pixels (None: the prior)."""
+def fit(
+    wf: WorkFrame,
+    thickness: float | None = None,
+    min_thickness: float | None = None,
+    max_faces: int = 6000,
+) -> Hypothesis:
+    """The slab hypothesis; ``thickness`` in working pixels (None: the prior, at least
+    ``min_thickness``)."""
     width = 2 * float(signed_distance_2d(wf.mask).max())
     t = PRIOR_THICKNESS_RATIO * width if thickness is None else float(thickness)
+    if thickness is None and min_thickness is not None:
+        t = max(t, float(min_thickness))
     t = float(np.clip(t, 1.0, width))
     verts, faces = implicit_slab_mesh(wf.mask, slab_h2(wf.mask, t), max_faces=max_faces)
     iou = fit_iou(rasterize(verts[:, :2], faces, wf.mask.shape), wf)
