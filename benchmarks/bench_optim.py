@@ -1,6 +1,6 @@
 """Benchmark of the three-stage optimizer: the "fast" preset against the "paper" preset (CPU).
 
-Both presets run on the same synthetic hand-object scenes (``tests/optim_scenes.py``: an
+Both presets run on the same synthetic hand-object scenes (``easyhoi.testing.optim_scenes``: an
 OpenHand grasping a cylinder or a box, masks rendered from the ground truth, the hand estimate
 perturbed) in the same process, one intra-op thread (the optimizer's small problems run several
 times slower oversubscribed on a busy machine), each preset ``--repeat`` times (3) in turn: the
@@ -89,7 +89,7 @@ def _quality(scene, model, params, metric_scale: float, camera, render_size: int
 
     from easyhoi.metrics import simulation_displacement
     from easyhoi.optim.run import plausibility
-    from easyhoi.optim.scene import Scene
+    from easyhoi.optim.state import Scene
 
     sc = Scene.from_input(scene.inp, model, torch.float64)
     params = params.detach().to(dtype=torch.float64)
@@ -191,9 +191,9 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--repeat", type=int, default=3, help="runs per preset; fastest time kept")
     args = ap.parse_args(argv)
-    sys.path.insert(0, str(ROOT))
     import torch
-    from tests.optim_scenes import make_scene
+
+    from easyhoi.testing.optim_scenes import make_scene
 
     torch.set_num_threads(args.threads)
     kinds = ["box"] if args.quick else ["cylinder", "box"]

@@ -21,7 +21,7 @@ import trimesh
 from PIL import Image
 
 from easyhoi.cli import main
-from easyhoi.io.result_folder import RESULT_FILES
+from easyhoi.result_folder import RESULT_FILES
 
 FAST = ["--set", "optim.camera.max_iters=10", "--set", "optim.contact.max_iters=10",
         "--set", "optim.refine.max_iters=5", "-q"]  # fmt: skip

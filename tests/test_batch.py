@@ -399,26 +399,19 @@ def test_cli_batch_exit_8_when_photos_fail(photos, tmp_path, capsys):
 
 def _fake_pipeline(monkeypatch):
     """Stand-ins for the reconstruction and the result writer (fast, no optimizer needed)."""
-    import easyhoi.io.result_folder as rf
     import easyhoi.pipeline as pipeline
     from easyhoi.io.image import load_image
 
     seen = {}
 
-    def reconstruct_photo(image, out_dir, config, seed=0, **kw):
-        assert out_dir is None
+    def reconstruct_photo(image, folder, settings, seed=None, **kw):
         load_image(image)
-        seen[Path(image).name] = (seed, config.hand_model)
-        return SimpleNamespace(result="R", inp="I", seconds=0.01)
-
-    def write_result_folder(result, inp, out_dir, image_name):
-        folder = Path(out_dir) / Path(image_name).stem
-        folder.mkdir(parents=True)
-        (folder / "result.json").write_text(json.dumps({"result": result}))
-        return [folder / "result.json"]
+        seen[Path(image).name] = (seed, settings.config.hand_model)
+        Path(folder).mkdir(parents=True)
+        (Path(folder) / "result.json").write_text(json.dumps({"result": "R"}))
+        return SimpleNamespace(files=[Path(folder) / "result.json"], seconds=0.01)
 
     monkeypatch.setattr(pipeline, "reconstruct_photo", reconstruct_photo)
-    monkeypatch.setattr(rf, "write_result_folder", write_result_folder)
     return seen
 
 

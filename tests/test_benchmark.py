@@ -12,14 +12,12 @@ from easyhoi.config import get_preset
 from easyhoi.synth.benchmark import (
     LOSS_ABLATIONS,
     BenchmarkSettings,
-    _truth,
-    evaluate_hand,
     evaluate_scene,
-    gt_hand_state,
     run_benchmark,
     scene_specs,
     strip_timings,
 )
+from easyhoi.synth.evaluate import _truth, evaluate_hand, gt_hand_state
 from easyhoi.synth.scene import make_scene
 from easyhoi.synth.tables import all_tables, goals, save_report, tables_markdown
 
@@ -103,7 +101,7 @@ def test_quick_benchmark_sane_and_deterministic(quick_report, tmp_path):
 def test_refine_rerun_matches_optimize():
     """refine_from_contact with the unchanged config reproduces optimize's stage 3 exactly."""
     from easyhoi.optim.run import optimize
-    from easyhoi.synth.benchmark import refine_from_contact
+    from easyhoi.synth.evaluate import refine_from_contact
 
     torch.set_num_threads(1)
     scene = make_scene(1, "box", "precision", image_size=64, photo=False)

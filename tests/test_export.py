@@ -21,7 +21,7 @@ from easyhoi.io.export import (
     write_result_json,
 )
 from easyhoi.structures import Camera
-from tests.hoi_scene import METRIC_SCALE, make_result
+from easyhoi.testing.hoi_scene import METRIC_SCALE, make_result
 
 
 @pytest.fixture(scope="module")
@@ -140,8 +140,8 @@ def test_exports_reject_non_results(tmp_path):
 def test_pictures_of_a_large_photo_are_drawn_at_picture_size():
     import torch
 
-    from easyhoi.io.result_folder import picture_scale
-    from tests.hoi_scene import make_input
+    from easyhoi.testing.hoi_scene import make_input
+    from easyhoi.viz.report import picture_scale
 
     big_h, big_w = 1200, 1600
     result = make_result(height=big_h, width=big_w)

@@ -6,8 +6,8 @@ import torch
 from easyhoi.errors import InvalidInputError
 from easyhoi.hand.fit import FitConfig, fit_keypoints, kabsch
 from easyhoi.structures import Camera, HandParams
+from easyhoi.testing.toy_hand import ToyHand
 from tests.helpers import assert_close
-from tests.toy_hand import ToyHand
 
 
 def plausible_pose(batch: int, gen: torch.Generator, dtype=torch.float64) -> torch.Tensor:

@@ -10,8 +10,8 @@ from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hand.base import mirror_params, mirror_points
 from easyhoi.hand.mano import MANOHand
 from easyhoi.structures import HandParams
+from easyhoi.testing.mano_synth import write_synthetic_mano
 from tests.helpers import assert_close
-from tests.mano_synth import write_synthetic_mano
 
 
 @pytest.fixture(scope="module")

@@ -225,3 +225,17 @@ def test_object_mesh_scene_merged_and_open_reported(tmp_path):
     assert load_object_mesh(tmp_path / "open.ply").metadata["easyhoi"]["watertight"] is False
     with pytest.raises(InvalidInputError):
         load_object_mesh(tmp_path / "missing.obj")
+
+
+def test_object_mesh_limits(tmp_path, monkeypatch):
+    import easyhoi.perception.importers as imp
+
+    path = tmp_path / "ball.ply"
+    trimesh.creation.icosphere(subdivisions=2).export(path)  # 320 faces
+    assert len(load_object_mesh(path).faces) == 320
+    monkeypatch.setattr(imp, "MAX_OBJECT_FACES", 319)
+    with pytest.raises(InvalidInputError, match="320 faces; at most 319"):
+        load_object_mesh(path)
+    monkeypatch.setattr(imp, "MAX_OBJECT_FILE_BYTES", path.stat().st_size - 1)
+    with pytest.raises(InvalidInputError, match="decimate"):
+        load_object_mesh(path)

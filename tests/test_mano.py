@@ -20,8 +20,8 @@ from easyhoi.hand.mano import (
 )
 from easyhoi.hand.safe_pickle import load_mano_pickle
 from easyhoi.structures import JOINT_PARENTS, OPENPOSE_ORDER, HandParams
+from easyhoi.testing.mano_synth import synthetic_mano_dict, write_mano_dict, write_synthetic_mano
 from tests.helpers import assert_close
-from tests.mano_synth import synthetic_mano_dict, write_mano_dict, write_synthetic_mano
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Chamfer distance / F-score against analytic answers (METHOD.md section 3)."""
+"""Chamfer distance / F-score against analytic answers (docs/method.md section 3)."""
 
 from __future__ import annotations
 

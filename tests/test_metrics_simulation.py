@@ -113,7 +113,7 @@ def test_decomposition_cache_memory_then_disk(tmp_path, monkeypatch):
     assert len(calls) == 1
     assert warm < cold and second.decomposition_seconds < 0.1
     assert second.displacement == first.displacement  # deterministic
-    # the METHOD.md settings reach V-HACD (max hulls 1024 -> clipping depth 10)
+    # the docs/method.md settings reach V-HACD (max hulls 1024 -> clipping depth 10)
     assert calls[0] == {
         "resolution": 1000,
         "concavity": 0.001,

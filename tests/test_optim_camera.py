@@ -17,11 +17,11 @@ from easyhoi.optim.camera import (
     initial_camera,
 )
 from easyhoi.optim.losses import sinkhorn_mask_loss
-from easyhoi.optim.scene import Scene, hard_iou
+from easyhoi.optim.state import Scene, hard_iou
 from easyhoi.render.raster import depth_map
 from easyhoi.render.soft import soft_silhouette
 from easyhoi.structures import Camera
-from tests.optim_scenes import make_scene
+from easyhoi.testing.optim_scenes import make_scene
 
 SIZE = 96
 

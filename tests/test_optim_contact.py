@@ -9,15 +9,10 @@ import pytest
 import torch
 
 from easyhoi.config import get_preset
-from easyhoi.optim.contact import (
-    ContactState,
-    contact_points,
-    fit_contact,
-    initial_hand,
-    register_contacts,
-)
-from easyhoi.optim.scene import Scene
-from tests.optim_scenes import make_scene
+from easyhoi.optim.contact import ContactState, fit_contact, initial_hand
+from easyhoi.optim.registration import contact_points, register_contacts
+from easyhoi.optim.state import Scene
+from easyhoi.testing.optim_scenes import make_scene
 
 SIZE = 96
 NOISE = dict(rot_noise=0.05, trans_noise=0.02, depth_noise=0.05, pose_noise=0.03)
@@ -144,7 +139,7 @@ def test_depth_registration_keeps_the_projection(hand):
 @pytest.mark.parametrize("side", ["right", "left"])
 def test_move_hand_is_a_rigid_motion_of_the_vertices(side, hand):
     from easyhoi.geometry.transforms import axis_angle_to_matrix
-    from easyhoi.optim.scene import move_hand, rest_wrist
+    from easyhoi.optim.placement import move_hand, rest_wrist
     from easyhoi.structures import HandParams
 
     g = torch.Generator().manual_seed(3)

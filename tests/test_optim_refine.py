@@ -10,9 +10,9 @@ import torch
 from easyhoi.config import get_preset
 from easyhoi.optim.refine import fit_refine, refine_terms
 from easyhoi.optim.run import plausibility
-from easyhoi.optim.scene import Scene
+from easyhoi.optim.state import Scene
 from easyhoi.structures import HandParams
-from tests.optim_scenes import make_scene
+from easyhoi.testing.optim_scenes import make_scene
 
 SIZE = 96
 

@@ -12,7 +12,7 @@ from easyhoi.config import get_preset, with_overrides
 from easyhoi.errors import OptimizationError
 from easyhoi.hoi import HOIResult
 from easyhoi.optim.run import optimize
-from tests.optim_scenes import make_scene
+from easyhoi.testing.optim_scenes import make_scene
 
 SIZE = 96
 NOISE = dict(rot_noise=0.05, trans_noise=0.02, depth_noise=0.05, pose_noise=0.03)

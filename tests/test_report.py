@@ -15,9 +15,9 @@ from PIL import Image
 import easyhoi.viz.report as report_mod
 import easyhoi.viz.views as views_mod
 from easyhoi.errors import InvalidInputError
-from easyhoi.io.result_folder import RESULT_FILES, write_result_folder
+from easyhoi.result_folder import RESULT_FILES, write_result_folder
+from easyhoi.testing.hoi_scene import METRIC_SCALE, H, W, hand_model, make_input, make_result
 from easyhoi.viz.report import fmt, report_html
-from tests.hoi_scene import METRIC_SCALE, H, W, make_input, make_result
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +35,9 @@ def folder(scene, tmp_path_factory):
     (stale / "old.txt").write_text("stale")
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(views_mod, "VIEW_SIZE", 64)
-        paths = write_result_folder(result, inp, out, "photo_01.jpg")
+        paths = write_result_folder(
+            result, inp, out / "photo_01", hand_model=hand_model(), title="photo_01.jpg"
+        )
     return out, paths
 
 
@@ -120,7 +122,7 @@ def test_failure_leaves_no_partial_folder(scene, tmp_path, monkeypatch):
     result, inp = scene
     monkeypatch.setattr(report_mod, "render_pictures", _boom)
     with pytest.raises(RuntimeError, match="injected"):
-        write_result_folder(result, inp, tmp_path, "a.png")
+        write_result_folder(result, inp, tmp_path / "a")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -132,14 +134,17 @@ def test_failure_keeps_existing_folder(scene, tmp_path, monkeypatch):
     monkeypatch.setattr(views_mod, "VIEW_SIZE", 32)
     monkeypatch.setattr(report_mod, "write_report", _boom)  # the very last file
     with pytest.raises(RuntimeError, match="injected"):
-        write_result_folder(result, inp, tmp_path, "a.png")
+        write_result_folder(result, inp, tmp_path / "a")
     assert [p.name for p in tmp_path.iterdir()] == ["a"]
     assert [p.name for p in old.iterdir()] == ["result.json"]
     assert (old / "result.json").read_text() == '{"old": true}'
 
 
-@pytest.mark.parametrize("name", ["", "../x.png", "a/b.png", ".hidden"])
-def test_bad_image_names(scene, tmp_path, name):
+@pytest.mark.parametrize("name", ["..", ".hidden", "file", "file/x"])
+def test_bad_folders_are_refused_before_any_work(scene, tmp_path, name, monkeypatch):
     result, inp = scene
-    with pytest.raises(InvalidInputError):
-        write_result_folder(result, inp, tmp_path, name)
+    (tmp_path / "file").write_text("not a folder")
+    monkeypatch.setattr(report_mod, "render_pictures", _boom)  # never reached
+    with pytest.raises((InvalidInputError, NotADirectoryError, FileExistsError)):
+        write_result_folder(result, inp, tmp_path / name)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]

@@ -16,7 +16,7 @@ import scipy.sparse as sp
 
 from easyhoi.errors import InvalidInputError, UnsafeFileError
 from easyhoi.hand.safe_pickle import load_mano_pickle
-from tests.mano_synth import dump_py2, fake_chumpy
+from easyhoi.testing.mano_synth import dump_py2, fake_chumpy
 
 
 class _Reducer:
@@ -162,3 +162,59 @@ def test_numpy2_module_spelling_loads(tmp_path):
     path = tmp_path / "np2.pkl"
     path.write_bytes(raw.replace(b"numpy.core.multiarray", b"numpy._core.multiarray"))
     np.testing.assert_array_equal(load_mano_pickle(path)["a"], np.arange(5.0))
+
+
+def _shared_lists(depth: int) -> list:
+    a: list = []
+    for _ in range(depth):
+        a = [a, a]  # each level references the previous one twice: 2**depth leaves as a tree
+    return a
+
+
+def test_expansion_is_counted_through_shared_references():
+    from easyhoi.hand.safe_pickle import check_expansion
+
+    # naive reference: walk the tree, counting every container and leaf value once per reference
+    def naive(o):
+        if isinstance(o, dict):
+            return 1 + sum(naive(v) for v in o.values())
+        if isinstance(o, list | tuple):
+            return 1 + sum(naive(v) for v in o)
+        return 1
+
+    for value in (_shared_lists(6), {"a": [1, 2, (3, 4)], "b": [[], {"c": 5}]}, [np.zeros(3)]):
+        assert check_expansion(value) == naive(value)
+    assert check_expansion(_shared_lists(12), limit=2**13) == 2**13 - 1
+
+
+@pytest.mark.parametrize("loader", ["mano", "hand_params"])
+def test_reference_bomb_and_cycles_are_refused_quickly(tmp_path, loader):
+    import time
+
+    from easyhoi.hand.safe_pickle import load_mano_pickle
+    from easyhoi.perception.importers import _read_file
+
+    load = load_mano_pickle if loader == "mano" else _read_file
+    bomb = tmp_path / "bomb.pkl"
+    bomb.write_bytes(pickle.dumps({"v_template": _shared_lists(40)}, protocol=2))
+    assert bomb.stat().st_size < 1000
+    t0 = time.perf_counter()
+    with pytest.raises(UnsafeFileError, match="expands to more than"):
+        load(bomb)
+    assert time.perf_counter() - t0 < 5.0  # the tree walk would never end (2**40 values)
+    cyc: list = []
+    cyc.append(cyc)
+    looped = tmp_path / "cycle.pkl"
+    looped.write_bytes(pickle.dumps({"v_template": cyc}, protocol=2))
+    with pytest.raises(UnsafeFileError, match="contains itself"):
+        load(looped)
+
+
+def test_oversized_pickle_is_refused_before_reading(tmp_path, monkeypatch):
+    import easyhoi.hand.safe_pickle as sp_mod
+
+    path = tmp_path / "big.pkl"
+    path.write_bytes(pickle.dumps({"v_template": np.zeros(1000)}, protocol=2))
+    monkeypatch.setattr(sp_mod, "MAX_PICKLE_BYTES", 100)
+    with pytest.raises(InvalidInputError, match="larger than"):
+        sp_mod.load_mano_pickle(path)

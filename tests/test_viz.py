@@ -13,6 +13,7 @@ from PIL import Image
 import easyhoi.viz.views as views_mod
 from easyhoi.errors import InvalidInputError
 from easyhoi.structures import Camera
+from easyhoi.testing.hoi_scene import H, W, hand_model, make_input, make_result
 from easyhoi.viz import (
     mask_iou,
     mask_ious,
@@ -26,7 +27,6 @@ from easyhoi.viz import (
 )
 from easyhoi.viz.plots import losses_png, stage_loss_series
 from easyhoi.viz.shade import SceneMesh, corner_normals
-from tests.hoi_scene import H, W, make_input, make_result
 
 
 @pytest.fixture(scope="module")
@@ -127,7 +127,7 @@ def test_views_front_matches_photo_direction(result, monkeypatch):
 
 
 def test_stage_overlays_differ_and_figure(result, inp):
-    panels = render_stages(result, inp.image)
+    panels = render_stages(result, inp.image, hand_model())
     assert [p[0] for p in panels] == ["initial", "camera", "contact", "refine"]
     assert all(p[1].shape == (H, W, 3) for p in panels)
     assert all(p[2] == "" for p in panels)
@@ -136,8 +136,12 @@ def test_stage_overlays_differ_and_figure(result, inp):
     assert np.any(panels[2][1] != panels[3][1])
     # the final stage equals the final overlay
     np.testing.assert_array_equal(panels[3][1], render_overlay(result, inp.image).image)
-    im = _png(stages_png(result, inp.image))
+    im = _png(stages_png(result, inp.image, hand_model()))
     assert im.size[0] > im.size[1] > 100
+    # without the run's hand model the earlier snapshots show the object and say why
+    bare = render_stages(result, inp.image)
+    assert [p[2] for p in bare] == ["hand model unavailable"] * 3 + [""]
+    np.testing.assert_array_equal(bare[3][1], panels[3][1])
 
 
 def test_mask_iou_and_figure(result, inp):

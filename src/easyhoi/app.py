@@ -10,11 +10,11 @@ writes its result folder there, a zip of that folder is made for download); only
 (checked by content with :func:`easyhoi.io.image.load_image`, not by the file extension).
 Failures reach the page as one readable sentence; tracebacks go to the server log only.
 
-The reconstruction is injectable: ``reconstruct_fn(image_path, out_dir, config, *, seed,
+The reconstruction is injectable: ``reconstruct_fn(image_path, folder, config, *, seed,
 progress, say)`` with the signature of :func:`easyhoi.pipeline.reconstruct_photo` (the
 default), returning an object whose ``files`` lists what it wrote; the page needs
 ``overlay.png``, ``scene.glb`` and ``result.json`` among them (see
-:mod:`easyhoi.io.result_folder`).
+:mod:`easyhoi.result_folder`).
 """
 
 from __future__ import annotations
@@ -307,7 +307,7 @@ def handle_request(
     local = run / "input" / f"{stem}{suffix or src.suffix.lower()[:6]}"
     local.parent.mkdir()
     shutil.copyfile(src, local)
-    out_dir = run / "result"
+    out_dir = run / stem
 
     def on_progress(stage: str, it: int, total: int, losses: dict) -> None:
         if progress is not None:

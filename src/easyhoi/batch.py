@@ -39,7 +39,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from easyhoi.distributed import Task, TaskResult, execute
-from easyhoi.errors import InvalidInputError
+from easyhoi.errors import ExitCode, InvalidInputError
 
 __all__ = [
     "IMAGE_EXTENSIONS",
@@ -477,8 +477,8 @@ class BatchSummary:
 
     @property
     def exit_code(self) -> int:
-        """0 when nothing failed, 8 (some photos of a batch failed) otherwise."""
-        return 8 if self.failed else 0
+        """``ExitCode.OK`` when nothing failed, ``ExitCode.BATCH_PARTIAL`` otherwise."""
+        return ExitCode.BATCH_PARTIAL if self.failed else ExitCode.OK
 
     def line(self) -> str:
         """One-line human summary."""
@@ -642,25 +642,21 @@ def summarize_photo(task: Task) -> dict:
 class ReconstructWorker:
     """The batch worker of ``easyhoi batch``: :func:`easyhoi.pipeline.reconstruct_photo`.
 
-    Parameters
-    ----------
-    config : EasyHOIConfig or None
-        Configuration of every photo (None: the "fast" preset). Picklable, so the worker can be
-        sent to processes and Ray tasks.
+    Args:
+        settings: The run's :class:`~easyhoi.settings.RunSettings`, or a configuration they are
+            resolved from once per process (None: the "fast" preset). Picklable, so the worker
+            can be sent to processes and Ray tasks. Each photo runs with its task's seed.
     """
 
-    def __init__(self, config=None):
-        self.config = config
+    def __init__(self, settings=None):
+        self.settings = settings
 
     def __call__(self, task: Task) -> dict:
         """Reconstruct one photo into ``task.output``; returns timing and file count."""
-        from easyhoi.io.result_folder import write_result_folder
         from easyhoi.pipeline import reconstruct_photo
+        from easyhoi.settings import RunSettings, resolve_run
 
-        rec = reconstruct_photo(task.image, None, self.config, seed=task.seed)
-        out = Path(task.output)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        # the result folder is named after the image name's stem: give it the planned name
-        name = out.name + (Path(task.image).suffix or ".img")
-        files = write_result_folder(rec.result, rec.inp, out.parent, name)
-        return {"seconds": round(float(rec.seconds), 3), "files": len(files)}
+        if not isinstance(self.settings, RunSettings):
+            self.settings = resolve_run(self.settings)
+        rec = reconstruct_photo(task.image, task.output, self.settings, seed=task.seed)
+        return {"seconds": round(float(rec.seconds), 3), "files": len(rec.files)}

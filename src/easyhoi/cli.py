@@ -1,9 +1,6 @@
 """The ``easyhoi`` command line.
 
-Exit codes: 0 success; 1 other easyhoi error; 2 invalid input (bad file, wrong size, bad
-option); 3 missing optional dependency; 4 backend failure; 5 no hand found; 6 no held object;
-7 optimization failure; 8 some photos of a batch failed; 70 internal error (a bug: please
-report it with ``--verbose`` output); 130 interrupted.
+Exit codes are :class:`easyhoi.errors.ExitCode` (listed by ``easyhoi --help``).
 """
 
 from __future__ import annotations
@@ -14,13 +11,9 @@ import sys
 from pathlib import Path
 
 from easyhoi import __version__
-from easyhoi.errors import EasyHOIError, InvalidInputError
+from easyhoi.errors import EXIT_CODE_MEANINGS, EasyHOIError, ExitCode, InvalidInputError
 
 logger = logging.getLogger("easyhoi")
-
-EXIT_BATCH_PARTIAL = 8
-EXIT_INTERNAL = 70
-EXIT_INTERRUPTED = 130
 
 
 # ----------------------------------------------------------------------------------------------
@@ -35,9 +28,9 @@ def cmd_demo_hand(args) -> int:
     from easyhoi.io.atomic import atomic_write_bytes
     from easyhoi.structures import HandParams
 
+    model = load_hand_model(args.hand_model, args.mano_dir)  # a missing MANO file fails first
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    model = load_hand_model(args.hand_model, args.mano_dir)
     rest = model(HandParams.zeros(1)).to_trimesh()
     params = HandParams.zeros(1)
     params = HandParams(params.global_orient, params.transl, grasp_pose(model).float(), None)
@@ -66,37 +59,36 @@ def cmd_example(args) -> int:
     from easyhoi.pipeline import reconstruct_photo
     from easyhoi.synth import make_scene
 
+    run = run_from_args(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    _say(args, f"generating synthetic scene (seed {args.seed}) ...")
-    scene = make_scene(args.seed, image_size=args.size)
-    photo = out / f"synthetic_{args.seed}.png"
+    _say(args, f"generating synthetic scene (seed {run.seed}) ...")
+    scene = make_scene(run.seed, image_size=args.size)
+    photo = out / f"synthetic_{run.seed}.png"
+    folder = out / photo.stem
     import io
 
     buf = io.BytesIO()
     Image.fromarray(scene.image).save(buf, format="PNG")
     atomic_write_bytes(photo, buf.getvalue())
     _say(args, f"wrote {photo} ({scene.object.kind}, {scene.grasp.grasp_type} grasp)")
-    cfg = _config_from_args(args)
     try:
         with _Progress(args, photo.name) as bar:
-            rec = reconstruct_photo(photo, out, cfg, seed=args.seed, progress=bar.update,
-                                    say=bar.step)  # fmt: skip
-        files, result = rec.files, rec.result
+            rec = reconstruct_photo(photo, folder, run, progress=bar.update, say=bar.step)
+        result = rec.result
         how = "photo -> perception -> optimizer"
     except (NoHandError, NoObjectError) as exc:
         # the generated photo defeated the offline perception: use the scene's own (perturbed)
         # perception outputs so the demo still shows the optimizer, and say so
         _err(f"perception failed on the synthetic photo ({exc}); using the scene's masks")
-        from easyhoi.io.result_folder import write_result_folder
         from easyhoi.optim.run import optimize
+        from easyhoi.result_folder import write_result_folder
 
         inp = scene.to_hoi_input("hamer")
-        result = optimize(inp, cfg.optim)
-        files = write_result_folder(result, inp, out, photo.name)
+        result = optimize(inp, run.config.optim, hand_model=run.hand_model)
+        write_result_folder(result, inp, folder, hand_model=run.hand_model, title=photo.name)
         how = "synthetic perception outputs -> optimizer"
-    folder = files[0].parent if files else out
     p = result.plausibility
     _say(args, f"reconstructed ({how}) in {time.perf_counter() - t0:.1f} s")
     _say(args, "plausibility: " + ", ".join(f"{k}={_fmt(v)}" for k, v in p.items()))
@@ -109,52 +101,50 @@ def _fmt(v) -> str:
 
 
 def cmd_reconstruct(args) -> int:
-    """Reconstruct hand + object from one or more photos."""
+    """Reconstruct hand + object from one photo into ``--out/<stem>``; several photos run as a
+    batch (one folder each, a manifest; see :mod:`easyhoi.batch`)."""
     from easyhoi.pipeline import reconstruct_photo
 
-    cfg = _config_from_args(args)
     _check_out_dir(Path(args.out))
+    # the config, the seed and the hand model (a missing or unsafe MANO file fails now, not
+    # after perception) are resolved once, before any photo is read
+    run = run_from_args(args)
     provided = _provided_from_args(args)
-    if len(args.images) > 1 and provided is not None:
-        raise InvalidInputError("--hand-mask/--object-mask/... imports need exactly one photo")
-    if cfg.hand_model == "mano":  # a missing or unsafe MANO file fails now, not after perception
-        from easyhoi.hand import load_hand_model
-
-        load_hand_model(cfg.hand_model, cfg.mano_dir)
-    failures = 0
-    for image in args.images:
-        out = Path(args.out) if len(args.images) == 1 else Path(args.out) / Path(image).stem
-        try:
-            with _Progress(args, Path(image).name) as bar:
-                rec = reconstruct_photo(
-                    image, out, cfg, seed=args.seed, provided=provided,
-                    progress=bar.update, say=bar.step,
-                )  # fmt: skip
-        except EasyHOIError as exc:
-            if len(args.images) == 1:
-                raise
-            failures += 1
-            _err(f"{image}: {type(exc).__name__}: {exc}")
-            continue
-        where = rec.files[0].parent if rec.files else out
-        _say(args, f"{image}: done in {rec.seconds:.1f} s -> {where} (open report.html)")
-        for f in rec.files:
-            logger.info("wrote %s", f)
-    return EXIT_BATCH_PARTIAL if failures else 0
+    if len(args.images) > 1:
+        if provided is not None:
+            raise InvalidInputError("--hand-mask/--object-mask/... imports need exactly one photo")
+        return _run_batch(args, [Path(p) for p in args.images], None, run)
+    image = Path(args.images[0])
+    folder = Path(args.out) / image.stem
+    with _Progress(args, image.name) as bar:
+        rec = reconstruct_photo(
+            image, folder, run, provided=provided, progress=bar.update, say=bar.step
+        )
+    _say(args, f"{image}: done in {rec.seconds:.1f} s -> {folder} (open report.html)")
+    for f in rec.files:
+        logger.info("wrote %s", f)
+    return ExitCode.OK
 
 
 def cmd_batch(args) -> int:
     """Reconstruct every photo of a folder; ``manifest.jsonl``/``.csv`` record each outcome."""
-    from tqdm import tqdm
-
-    from easyhoi.batch import ReconstructWorker, discover_images, run_batch
+    from easyhoi.batch import discover_images
 
     folder = Path(args.folder)
     images = discover_images(folder, recursive=args.recursive, exclude=[args.out])
     if not images:
         hint = "" if args.recursive else " (add --recursive to include subfolders)"
         raise InvalidInputError(f"no photos found in {folder}{hint}")
-    worker = ReconstructWorker(_config_from_args(args))
+    return _run_batch(args, images, folder, run_from_args(args))
+
+
+def _run_batch(args, images: list[Path], root: Path | None, run) -> int:
+    """Run the batch runner over ``images`` with a progress bar; the batch's exit code."""
+    from tqdm import tqdm
+
+    from easyhoi.batch import ReconstructWorker, run_batch
+
+    worker = ReconstructWorker(run)
     counts = {"ok": 0, "failed": 0, "skipped": 0}
     bar = tqdm(total=len(images), unit="photo", desc="batch",
                disable=args.quiet or not sys.stderr.isatty())  # fmt: skip
@@ -168,9 +158,10 @@ def cmd_batch(args) -> int:
 
     try:
         summary = run_batch(
-            images, args.out, worker, engine=args.engine, workers=args.workers,
-            resume=args.resume, seed=args.seed, ray_address=args.ray_address,
-            progress=progress, root=folder,
+            images, args.out, worker, engine=getattr(args, "engine", "inline"),
+            workers=getattr(args, "workers", 1), resume=getattr(args, "resume", False),
+            seed=run.seed, ray_address=getattr(args, "ray_address", None),
+            progress=progress, root=root,
         )  # fmt: skip
     finally:
         bar.close()
@@ -277,6 +268,17 @@ def cmd_doctor(args) -> int:
 # ----------------------------------------------------------------------------------------------
 
 
+def run_from_args(args):
+    """The run's :class:`~easyhoi.settings.RunSettings` from the command line, resolved once.
+
+    ``--seed N`` is an alias of ``--set optim.seed=N``; giving both with different values is
+    refused (InvalidInputError) rather than one silently winning.
+    """
+    from easyhoi.settings import resolve_run
+
+    return resolve_run(_config_from_args(args))
+
+
 def _config_from_args(args):
     from dataclasses import replace
 
@@ -296,9 +298,23 @@ def _config_from_args(args):
     perception = {k: v for k, v in perception.items() if v}
     if perception:
         cfg = replace(cfg, perception=replace(cfg.perception, **perception))
-    if args.set:
-        cfg = with_overrides(cfg, parse_overrides(args.set, cfg))
+    overrides = parse_overrides(args.set, cfg) if args.set else {}
+    cfg = with_overrides(cfg, overrides)
+    seed = getattr(args, "seed", None)
+    if seed is not None:
+        if cfg.optim.seed != seed and _sets_seed(overrides):
+            raise InvalidInputError(
+                f"--seed {seed} and --set optim.seed={cfg.optim.seed} disagree; --seed is an "
+                "alias of --set optim.seed: give one of them"
+            )
+        cfg = with_overrides(cfg, {"optim.seed": seed})
     return cfg
+
+
+def _sets_seed(overrides: dict) -> bool:
+    """Whether ``--set`` overrides named the seed (``optim.seed``, or a whole ``optim``)."""
+    optim = overrides.get("optim")
+    return "optim.seed" in overrides or (isinstance(optim, dict) and "seed" in optim)
 
 
 def _check_out_dir(out: Path) -> None:
@@ -432,11 +448,28 @@ def _set_torch_threads() -> None:
     torch.set_num_threads(n)
 
 
+_OUT_HELP = (
+    "output folder: OUT/<photo stem>/; several photos run as a batch (one folder each, x.jpg "
+    "and x.png as x_jpg and x_png, and a manifest)"
+)
+_SEED_HELP = (
+    "random seed, an alias of --set optim.seed=N (default: the preset's, 0); giving both with "
+    "different values is an error. With several photos each photo's seed is derived from it "
+    "and the photo's name"
+)
+
+
+def exit_codes_help() -> str:
+    """The exit-code table as ``easyhoi --help`` prints it."""
+    rows = [f"  {int(code):3d}  {text}" for code, text in EXIT_CODE_MEANINGS.items()]
+    return "exit codes:\n" + "\n".join(rows)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="easyhoi",
         description="Reconstruct a 3D hand holding an object from one photo, on a CPU.",
-        epilog=__doc__.split("\n\n", 1)[1] if __doc__ else None,
+        epilog=exit_codes_help(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"easyhoi {__version__}")
@@ -444,9 +477,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("reconstruct", help="photo(s) -> hand + object meshes, camera, report")
     p.add_argument("images", nargs="+", metavar="IMAGE", help="photo file(s)")
-    p.add_argument("--out", required=True, help="output folder (one subfolder per photo if many)")
+    p.add_argument("--out", required=True, help=_OUT_HELP)
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=int, default=None, help=_SEED_HELP)
     _add_model_options(p)
     for flag, role in (("--hand-backend", "hand"), ("--segmenter", "segmenter"),
                        ("--inpainter", "inpainter"), ("--amodal", "amodal"),
@@ -477,7 +510,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip photos the manifest records as done (folder present)")  # fmt: skip
     p.add_argument("--recursive", action="store_true", help="include subfolders")
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
-    p.add_argument("--seed", type=int, default=0, help="batch seed (default 0)")
+    p.add_argument("--seed", type=int, default=None, help=_SEED_HELP)
     _add_model_options(p)
     for flag, role in (("--hand-backend", "hand"), ("--segmenter", "segmenter"),
                        ("--inpainter", "inpainter"), ("--amodal", "amodal"),
@@ -490,7 +523,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("example", help="synthetic photo -> full reconstruction (make demo)")
     p.add_argument("--out", default="outputs/demo", help="output folder")
-    p.add_argument("--seed", type=int, default=0, help="scene and optimizer seed")
+    p.add_argument("--seed", type=int, default=None,
+                   help="scene and run seed (alias of --set optim.seed; default 0)")  # fmt: skip
     p.add_argument("--size", type=int, default=384, help="photo size in pixels")
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="config override")
@@ -555,7 +589,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
-        return 2
+        return int(ExitCode.INVALID_INPUT)
     level = logging.DEBUG if args.verbose else (logging.ERROR if args.quiet else logging.WARNING)
     # --verbose opens easyhoi's own debug log only; other libraries (matplotlib, numba, ...)
     # stay at warnings
@@ -569,15 +603,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.verbose:
             logger.exception("failed")
         _err(f"error: {type(exc).__name__}: {exc}")
-        return exc.exit_code
+        return int(exc.exit_code)
     except KeyboardInterrupt:
         _err("interrupted")
-        return EXIT_INTERRUPTED
+        return int(ExitCode.INTERRUPTED)
     except Exception as exc:  # noqa: BLE001 - last line of defence: no traceback for users
         if args.verbose:
             logger.exception("internal error")
         _err(f"internal error: {type(exc).__name__}: {exc} (rerun with --verbose for details)")
-        return EXIT_INTERNAL
+        return int(ExitCode.INTERNAL)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -23,6 +23,7 @@ import ast
 import dataclasses
 import inspect
 import json
+import math
 import textwrap
 import types
 import typing
@@ -36,6 +37,7 @@ __all__ = [
     "CameraStageConfig",
     "ContactStageConfig",
     "EasyHOIConfig",
+    "MAX_SEED",
     "OptimConfig",
     "PRESETS",
     "PerceptionConfig",
@@ -47,6 +49,22 @@ __all__ = [
     "to_dict",
     "with_overrides",
 ]
+
+
+#: Largest accepted seed (numpy's seed range; OpenCV's backends get the seed modulo 2**31).
+MAX_SEED = 2**32 - 1
+
+
+def _finite(obj) -> None:
+    """Every float of a config dataclass (tuples included) is finite."""
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        values = v if isinstance(v, tuple) else (v,)
+        for x in values:
+            if isinstance(x, float) and not math.isfinite(x):
+                raise InvalidInputError(
+                    f"{type(obj).__name__}.{f.name} must be a finite number, got {v!r}"
+                )
 
 
 def _positive(obj, *names: str) -> None:
@@ -97,8 +115,8 @@ class CameraStageConfig:
     sinkhorn_weight: float = 1.0
     """Weight of the Sinkhorn mask term."""
     sinkhorn_grid: int = 32
-    """Cells per side of the coarse grid the Sinkhorn term works on. Cost grows as grid^4:
-    measured forward+backward on 2 busy CPU cores, 16 -> 0.06 s, 32 -> 1.5 s per call."""
+    """Cells per side of the coarse grid the Sinkhorn term works on. Cost grows as grid^4
+    (forward + backward on one CPU core: about 0.06 s at 16, 1.5 s at 32 per call)."""
     sinkhorn_blur: float = 0.05
     """Entropic blur of the Sinkhorn term, in image-normalised units (long side = 1)."""
     sinkhorn_scaling: float = 0.8
@@ -118,6 +136,7 @@ class CameraStageConfig:
     """Optimise fx and fy together with the 6-DoF pose (8 DoF); False keeps the focal fixed."""
 
     def __post_init__(self):
+        _finite(self)
         _positive(self, "lr", "sinkhorn_grid", "sinkhorn_blur", "init_fov_deg", "init_distance")
         _non_negative(self, "max_iters", "stop_loss", "patience", "min_delta")
         _non_negative(self, "iou_weight", "sinkhorn_weight")
@@ -179,6 +198,7 @@ class ContactStageConfig:
     object units: the grasp's contact zones on the surface)."""
 
     def __post_init__(self):
+        _finite(self)
         _positive(self, "lr", "peel_layers")
         _non_negative(self, "max_iters", "stop_loss", "patience", "min_delta", "icp_iters")
         _non_negative(self, "icp_tolerance", "rotation_prior_weight", "scan_tie_margin")
@@ -248,6 +268,7 @@ class RefineStageConfig:
     """Optimise the articulation theta."""
 
     def __post_init__(self):
+        _finite(self)
         _positive(self, "lr_global", "lr_pose", "sdf_resolution")
         if self.lr_transl is not None and not self.lr_transl > 0:
             raise InvalidInputError(
@@ -309,8 +330,12 @@ class OptimConfig:
     """Record the losses in the stage history every this many iterations (the last always)."""
 
     def __post_init__(self):
+        _finite(self)
         _positive(self, "render_size", "history_every")
-        _non_negative(self, "seed")
+        if not 0 <= self.seed <= MAX_SEED:
+            raise InvalidInputError(
+                f"OptimConfig.seed must be in [0, {MAX_SEED}], got {self.seed!r}"
+            )
         if self.dtype not in _DTYPES:
             raise InvalidInputError(
                 f"OptimConfig.dtype must be one of {_DTYPES}, got {self.dtype!r}"
@@ -365,6 +390,7 @@ class EasyHOIConfig:
     """Name of the preset this configuration came from (provenance only)."""
 
     def __post_init__(self):
+        _finite(self)
         if self.hand_model not in _HAND_MODELS:
             raise InvalidInputError(
                 f"hand_model must be one of {_HAND_MODELS}, got {self.hand_model!r}"
@@ -375,6 +401,9 @@ class EasyHOIConfig:
 # presets
 # ----------------------------------------------------------------------------------------------
 
+#: The paper's settings (docs/method.md section 2.3): 1000-iteration caps without early stopping,
+#: registration at iterations 100 and 200, the paper's loss weights and learning rates, 256 px
+#: renders, a 32 x 32 Sinkhorn grid and a 64^3 SDF.
 _PAPER = EasyHOIConfig(
     optim=OptimConfig(
         camera=CameraStageConfig(),
@@ -385,32 +414,38 @@ _PAPER = EasyHOIConfig(
     name="paper",
 )
 
+#: The default: the same three stages at a cost a CPU can afford, and the weights that work with
+#: the shorter schedule. docs/benchmark.md measures it against "paper" on synthetic scenes.
 _FAST = EasyHOIConfig(
     optim=OptimConfig(
         camera=CameraStageConfig(
+            # coarse-to-fine at 64 then 128 px, stopping once the silhouette fits: the camera
+            # converges in tens of iterations, not a thousand
             max_iters=150,
             stop_loss=0.05,
             patience=20,
             resolution_schedule=(0.5, 1.0),
+            # the Sinkhorn term costs grid^4; a 16 x 16 grid still pulls non-overlapping masks
+            # together, which is all the term is for
             sinkhorn_grid=16,
+            # start from the camera whose projected object box matches the amodal mask's box,
+            # trying all 24 axis-aligned rotations: an image-to-3D model or a scan may put the
+            # object in any canonical frame, and a bad start rotation is a local minimum
             init_from_masks=True,
-            # any mesh frame (synthetic benchmark, 20 scenes with randomly rotated canonical
-            # frames: object IoU 0.789 -> 0.813, MPJPE rotation-aligned 0.82 -> 0.76 cm)
             init_rotations="cube",
         ),
         contact=ContactStageConfig(
             max_iters=150,
             patience=20,
             resolution_schedule=(0.5, 1.0),
+            # the paper's 100 / 200 scaled to the shorter stage
             register_at=(20, 60),
             icp_iters=20,
-            # the mask term alone turned the hand 2 -> 4-6 degrees away from the estimator's
-            # rotation (error vs the ground truth) and worsened the depth / metric scale; this
-            # keeps it (cylinder scene: hand error 3.2 -> 1.4 cm, scale error 14 -> 8 %)
+            # the hand estimator's rotation is better than what the hand mask alone implies (a
+            # silhouette is nearly symmetric under rotation): keep it unless the mask insists
             rotation_prior_weight=100.0,
-            # the depth where the contact zones lie on the surface, not where one vertex touches
-            # (20 held synthetic scenes, with refine.lr_pose 3e-3 below: scale error 22.4 ->
-            # 14.2 %, S.D. 8.5 -> 4.6 cm, in contact 0.65 -> 1.0; I.V. 0.09 -> 3.9 cm3)
+            # place the hand at the depth where its contact zones lie on the object's surface,
+            # not where a single vertex first touches it: a grasp touches with pads and palm
             scan_band=0.02,
         ),
         refine=RefineStageConfig(
@@ -418,42 +453,34 @@ _FAST = EasyHOIConfig(
             patience=15,
             resolution_schedule=(0.5, 1.0),
             sdf_resolution=48,
-            # 1e-3 of the object's size per step (~1e-4 m for a 10 cm object)
+            # translation steps of 1e-3 of the object's size (about 0.1 mm for a 10 cm object)
             lr_transl=1e-3,
-            # smaller articulation steps: the fingers that the right depth makes collide are
-            # pushed out without drifting from the estimate (MPJPE ra 1.19 -> 0.87 cm with the
-            # scan band above)
+            # smaller articulation steps than the paper's: fingers pushed out of the object do
+            # not drift away from the estimator's pose within the short schedule
             lr_pose=3e-3,
-            # The paper's balance buries the hand even with the contact sum rescaled to MANO's
-            # 115 vertices (contact_reference_count): 10 x the mean penetration is 10 / V per
-            # penetrating vertex, 5 x 115 / |C| ~ 2 per contact vertex left outside (fingers
-            # that do not touch pull the hand in). Here penetration ~10 per vertex, attraction
-            # 1 x 115 / |C| only within 5 % of the object size (benchmarks/bench_optim.py).
-            # 2000 rather than 20000: a grasp holds by pressing on the object, and the stiffer
-            # term left the fingers resting on the surface (40 held synthetic scenes, weight
-            # 20000 / 5000 / 2000 / 1000: S.D. 4.52 / 3.72 / 3.69 / 3.55 cm, I.V. 5.5 / 5.8 /
-            # 6.6 / 7.9 cm3, MPJPE ra 0.87 / 0.86 / 0.83 / 0.81 cm, hand IoU 0.73 / 0.75 /
-            # 0.76 / 0.77)
+            # Penetration dominates: with the paper's balance (10 x the mean over all vertices
+            # against 5 x the contact sum) the pull of the fingers that do not touch the object
+            # outweighs the push of the ones inside it, and the hand sinks into the object. Here
+            # a penetrating vertex costs about 10 and a contact vertex outside the object
+            # attracts with weight 1 x 115 / |C|, only within 5 % of the object's size, so only
+            # fingers that nearly touch are pulled in. Not stiffer: a grasp holds by pressing on
+            # the object, and a stiffer penetration term leaves the fingers resting on it.
             penetration_weight=2000.0,
             contact_weight=1.0,
             contact_max_distance=0.05,
-            # the thumb and index close the grasp from opposite sides: their pads are pulled in
-            # from 10 % of the object's size (the estimator's fingers often end 5-15 mm off).
-            # 60 held synthetic scenes (3 x 20): S.D. 3.80 -> 3.20 cm (paired difference -0.60,
-            # standard error 0.31), lateral grasps 5.7 -> 4.8; MPJPE ra 0.821 -> 0.823 cm, hand
-            # IoU 0.785 -> 0.782, I.V. 6.1 -> 6.5 cm3; 0.15: S.D. 3.40, MPJPE 0.85, 0.3 worse
+            # the thumb and index finger close a grasp from opposite sides; their pads are pulled
+            # in from 10 % of the object's size, since an estimator's fingertips often end 5-15
+            # mm off the surface
             opposition_max_distance=0.1,
             penetration_threshold=-0.002,
         ),
+        # half the paper's render size: every render costs in proportion to its pixels
         render_size=128,
     ),
     name="fast",
 )
 
-#: Named presets. "paper": the paper's schedule (1000-iteration caps, registration at 100 and
-#: 200, 256 px renders, 32x32 Sinkhorn grid, 64^3 SDF). "fast" (the default): coarse-to-fine
-#: 64 -> 128 px, 150 / 150 / 100 iterations with early stopping, registration at 20 and 60,
-#: the estimator's hand rotation kept by a prior in stage 2, penetration-dominated refinement.
+#: Named presets: "paper" (the paper's settings) and "fast" (the default).
 PRESETS: dict[str, EasyHOIConfig] = {"paper": _PAPER, "fast": _FAST}
 
 DEFAULT_PRESET = "fast"
@@ -540,18 +567,14 @@ def _walk(cfg, parts: list[str], path: str):
 def with_overrides(cfg, overrides: dict[str, Any]):
     """A copy of ``cfg`` with dotted-path fields replaced, type-checked.
 
-    Parameters
-    ----------
-    cfg : a config dataclass (usually :class:`EasyHOIConfig`)
-    overrides : dict
-        ``{"optim.refine.max_iters": 50, "optim.camera.use_sinkhorn": False, ...}``. ints are
-        accepted for float fields, lists for tuple fields; the value checks of each dataclass
-        run again on the new values.
+    Args:
+        cfg: a config dataclass (usually :class:`EasyHOIConfig`)
+        overrides (dict): ``{"optim.refine.max_iters": 50, "optim.camera.use_sinkhorn": False,
+            ...}``. ints are accepted for float fields, lists for tuple fields; the value checks of
+            each dataclass run again on the new values.
 
-    Raises
-    ------
-    InvalidInputError
-        Unknown path, wrong type, or a value outside its allowed range.
+    Raises:
+        InvalidInputError: Unknown path, wrong type, or a value outside its allowed range.
     """
     for path, value in overrides.items():
         parts = path.split(".")

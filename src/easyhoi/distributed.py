@@ -45,7 +45,12 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 
-from easyhoi.errors import EasyHOIError, InvalidInputError, MissingDependencyError
+from easyhoi.errors import (
+    EasyHOIError,
+    ExitCode,
+    InvalidInputError,
+    MissingDependencyError,
+)
 
 __all__ = [
     "ENGINES",
@@ -64,7 +69,7 @@ logger = logging.getLogger(__name__)
 ENGINES = ("local", "ray", "inline")
 
 #: Exit code recorded for exceptions that are not :class:`EasyHOIError` (a bug), as in the CLI.
-EXIT_INTERNAL = 70
+EXIT_INTERNAL = ExitCode.INTERNAL
 
 #: Error type recorded when a worker process dies while running a task.
 WORKER_DIED = "WorkerDied"
@@ -76,16 +81,11 @@ Worker = Callable[["Task"], "dict | None"]
 class Task:
     """One photo of a batch.
 
-    Attributes
-    ----------
-    key : str
-        The photo's name inside the batch (relative POSIX path); unique per batch.
-    image : str
-        Path of the photo file.
-    output : str
-        Folder the worker writes this photo's results into.
-    seed : int
-        Random seed of this photo (derived from the batch seed and ``key``).
+    Attributes:
+        key (str): The photo's name inside the batch (relative POSIX path); unique per batch.
+        image (str): Path of the photo file.
+        output (str): Folder the worker writes this photo's results into.
+        seed (int): Random seed of this photo (derived from the batch seed and ``key``).
     """
 
     key: str
@@ -98,24 +98,15 @@ class Task:
 class TaskResult:
     """Outcome of one :class:`Task`.
 
-    Attributes
-    ----------
-    key : str
-        :attr:`Task.key`.
-    status : str
-        ``"ok"`` or ``"failed"``.
-    seconds : float
-        Wall time of the worker call (0 when the process died).
-    error_type : str or None
-        Exception class name (or ``"WorkerDied"``) when failed.
-    error : str or None
-        Exception message when failed.
-    exit_code : int
-        0 when ok; the error's ``exit_code`` for an EasyHOIError; 70 otherwise.
-    internal : bool
-        True when the failure was not an EasyHOIError (a bug or a crash).
-    info : dict
-        The worker's return value (JSON-ready), empty when failed or None.
+    Attributes:
+        key (str): :attr:`Task.key`.
+        status (str): ``"ok"`` or ``"failed"``.
+        seconds (float): Wall time of the worker call (0 when the process died).
+        error_type (str or None): Exception class name (or ``"WorkerDied"``) when failed.
+        error (str or None): Exception message when failed.
+        exit_code (int): 0 when ok; the error's ``exit_code`` for an EasyHOIError; 70 otherwise.
+        internal (bool): True when the failure was not an EasyHOIError (a bug or a crash).
+        info (dict): The worker's return value (JSON-ready), empty when failed or None.
     """
 
     key: str
@@ -179,20 +170,14 @@ def _json_ready(info) -> dict:
 def run_task(worker: Worker, task: Task, threads: int | None = None) -> TaskResult:
     """Run ``worker(task)`` and record its outcome; never raises for a failing photo.
 
-    Parameters
-    ----------
-    worker : callable
-        ``worker(task) -> dict | None``.
-    task : Task
-        The photo.
-    threads : int or None
-        Torch threads to use in this process (None: leave as is).
+    Args:
+        worker (callable): ``worker(task) -> dict | None``.
+        task (Task): The photo.
+        threads (int or None): Torch threads to use in this process (None: leave as is).
 
-    Returns
-    -------
-    TaskResult
-        ``status="ok"`` with the worker's dict in ``info``, or ``"failed"`` with the error.
-        KeyboardInterrupt still propagates.
+    Returns:
+        TaskResult: ``status="ok"`` with the worker's dict in ``info``, or ``"failed"`` with the
+            error. KeyboardInterrupt still propagates.
     """
     _set_threads(threads)
     t0 = time.perf_counter()
@@ -216,36 +201,25 @@ def execute(
 ) -> Iterator[TaskResult]:
     """Run ``worker`` on every task; yield one :class:`TaskResult` per task as each finishes.
 
-    Parameters
-    ----------
-    tasks : iterable of Task
-        The photos (keys must be unique).
-    worker : callable
-        Picklable ``worker(task) -> dict | None`` (see the module docstring).
-    engine : {"local", "ray", "inline"}
-        Where to run (see the module docstring).
-    workers : int
-        Parallel worker processes (local) or Ray CPUs of the local cluster; >= 1.
-    threads : int or None
-        Torch threads per worker (None: ``max(1, cores // workers)``); ignored inline.
-    ray_address : str or None
-        Address of an existing Ray cluster (``"auto"``, ``"127.0.0.1:6379"``...); None starts a
-        local one.
-    mp_context : str or None
-        Start method of the local pool: ``"forkserver"`` or ``"spawn"`` (None: forkserver where
-        available).
+    Args:
+        tasks (iterable of Task): The photos (keys must be unique).
+        worker (callable): Picklable ``worker(task) -> dict | None`` (see the module docstring).
+        engine ({"local", "ray", "inline"}): Where to run (see the module docstring).
+        workers (int): Parallel worker processes (local) or Ray CPUs of the local cluster; >= 1.
+        threads (int or None): Torch threads per worker (None: ``max(1, cores // workers)``);
+            ignored inline.
+        ray_address (str or None): Address of an existing Ray cluster (``"auto"``,
+            ``"127.0.0.1:6379"``...); None starts a local one.
+        mp_context (str or None): Start method of the local pool: ``"forkserver"`` or ``"spawn"``
+            (None: forkserver where available).
 
-    Yields
-    ------
-    TaskResult
-        In completion order (sort by ``key`` for a deterministic order).
+    Yields:
+        TaskResult: In completion order (sort by ``key`` for a deterministic order).
 
-    Raises
-    ------
-    InvalidInputError
-        Unknown engine, ``workers < 1``, duplicate keys or a worker that cannot be pickled.
-    MissingDependencyError
-        ``engine="ray"`` without Ray installed.
+    Raises:
+        InvalidInputError: Unknown engine, ``workers < 1``, duplicate keys or a worker that cannot
+            be pickled.
+        MissingDependencyError: ``engine="ray"`` without Ray installed.
     """
     if engine not in ENGINES:
         raise InvalidInputError(f"unknown batch engine {engine!r}; available: {', '.join(ENGINES)}")

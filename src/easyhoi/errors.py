@@ -1,24 +1,87 @@
-"""Exception hierarchy: every public boundary raises one of these, never a bare assert."""
+"""Exception hierarchy and exit codes.
+
+Every public boundary raises one of these errors, never a bare assert. Each error class carries
+the exit code the command line returns for it; :class:`ExitCode` is the one table of those codes
+(the CLI, the batch manifest and ``docs/bad_input.md`` all use it).
+"""
 
 from __future__ import annotations
+
+from enum import IntEnum
+
+__all__ = [
+    "EXIT_CODE_MEANINGS",
+    "BackendError",
+    "EasyHOIError",
+    "ExitCode",
+    "InvalidInputError",
+    "MissingDependencyError",
+    "NoHandError",
+    "NoObjectError",
+    "OptimizationError",
+    "UnsafeFileError",
+    "exit_code_of",
+    "require",
+]
+
+
+class ExitCode(IntEnum):
+    """Process exit codes of the ``easyhoi`` command (also recorded per photo by ``batch``)."""
+
+    OK = 0
+    ERROR = 1
+    INVALID_INPUT = 2
+    MISSING_DEPENDENCY = 3
+    BACKEND = 4
+    NO_HAND = 5
+    NO_OBJECT = 6
+    OPTIMIZATION = 7
+    BATCH_PARTIAL = 8
+    INTERNAL = 70  # EX_SOFTWARE of sysexits.h
+    INTERRUPTED = 130  # 128 + SIGINT, as shells report a Ctrl-C
+
+
+#: What each exit code means, in the words ``easyhoi --help`` prints.
+EXIT_CODE_MEANINGS: dict[ExitCode, str] = {
+    ExitCode.OK: "success",
+    ExitCode.ERROR: "other easyhoi error",
+    ExitCode.INVALID_INPUT: "invalid input (bad file, wrong size, bad option or value)",
+    ExitCode.MISSING_DEPENDENCY: "missing optional dependency (the message names the install)",
+    ExitCode.BACKEND: "a perception or geometry backend failed",
+    ExitCode.NO_HAND: "no hand found in the photo",
+    ExitCode.NO_OBJECT: "a hand but no held object found",
+    ExitCode.OPTIMIZATION: "the optimizer could not produce a valid result",
+    ExitCode.BATCH_PARTIAL: "some photos of a batch failed (see its manifest)",
+    ExitCode.INTERNAL: "internal error, a bug: please report it with the --verbose output",
+    ExitCode.INTERRUPTED: "interrupted (Ctrl-C)",
+}
+
+
+def exit_code_of(exc: BaseException) -> ExitCode:
+    """The exit code for an exception: its own for an :class:`EasyHOIError`, else INTERNAL."""
+    if isinstance(exc, EasyHOIError):
+        return ExitCode(exc.exit_code)
+    if isinstance(exc, KeyboardInterrupt):
+        return ExitCode.INTERRUPTED
+    return ExitCode.INTERNAL
 
 
 class EasyHOIError(Exception):
     """Base class of every error easyhoi raises on purpose."""
 
-    exit_code = 1
+    exit_code = ExitCode.ERROR
 
 
 class InvalidInputError(EasyHOIError, ValueError):
     """The caller gave data of the wrong shape, type, range or content."""
 
-    exit_code = 2
+    exit_code = ExitCode.INVALID_INPUT
 
 
 class MissingDependencyError(EasyHOIError, ImportError):
     """An optional dependency is not installed; the message names the install that fixes it."""
 
-    exit_code = 3
+    exit_code = ExitCode.MISSING_DEPENDENCY
 
     def __init__(self, package: str, extra: str | None = None, purpose: str = ""):
         fix = f"pip install 'easyhoi[{extra}]'" if extra else f"pip install {package}"
@@ -31,7 +94,7 @@ class MissingDependencyError(EasyHOIError, ImportError):
 class BackendError(EasyHOIError, RuntimeError):
     """A perception or geometry backend failed on valid input."""
 
-    exit_code = 4
+    exit_code = ExitCode.BACKEND
 
 
 class UnsafeFileError(InvalidInputError):
@@ -41,19 +104,19 @@ class UnsafeFileError(InvalidInputError):
 class NoHandError(EasyHOIError):
     """No hand was found in the photo."""
 
-    exit_code = 5
+    exit_code = ExitCode.NO_HAND
 
 
 class NoObjectError(EasyHOIError):
     """A hand was found but no held object."""
 
-    exit_code = 6
+    exit_code = ExitCode.NO_OBJECT
 
 
 class OptimizationError(EasyHOIError, RuntimeError):
     """The optimizer could not produce a valid result (for example NaN losses)."""
 
-    exit_code = 7
+    exit_code = ExitCode.OPTIMIZATION
 
 
 def require(module: str, extra: str | None = None, purpose: str = ""):

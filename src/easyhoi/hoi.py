@@ -4,7 +4,7 @@ Everything perception produces enters the optimizer through :class:`HOIInput`, w
 in-process, read from files written by other tools, or given by the user. The optimizer returns
 a :class:`HOIResult` with one :class:`StageResult` snapshot per stage that ran.
 
-Frames and units (METHOD.md section 2.2): the global frame is the OBJECT's canonical frame, in
+Frames and units (docs/method.md section 2.2): the global frame is the OBJECT's canonical frame, in
 the object's own arbitrary unit. ``metric_scale`` (metres per object unit) is recovered from the
 hand's known size; the *metric object frame* is the object frame scaled by ``metric_scale``.
 """

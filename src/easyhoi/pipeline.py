@@ -8,7 +8,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from easyhoi.config import EasyHOIConfig, get_preset
+from easyhoi.config import EasyHOIConfig
+from easyhoi.settings import RunSettings, resolve_run
 
 logger = logging.getLogger(__name__)
 
@@ -26,10 +27,10 @@ class Reconstruction:
 
 def reconstruct_photo(
     image_path: str | Path,
-    out_dir: str | Path | None = None,
-    config: EasyHOIConfig | None = None,
+    folder: str | Path | None = None,
+    settings: RunSettings | EasyHOIConfig | None = None,
     *,
-    seed: int = 0,
+    seed: int | None = None,
     provided=None,
     progress: Callable[[str, int, int, dict], None] | None = None,
     say: Callable[[str], None] | None = None,
@@ -37,16 +38,17 @@ def reconstruct_photo(
     """Reconstruct the hand and the held object of one photo.
 
     Args:
-        image_path: the photo (any format PIL reads; decoded by content).
-        out_dir: folder for the outputs (None: nothing written).
-        config: :class:`EasyHOIConfig` (default: the "fast" preset).
-        seed: random seed (same input + seed -> same output).
+        image_path: The photo (any format PIL reads; decoded by content).
+        folder: The result folder to write (created or replaced whole; see
+            :func:`easyhoi.result_folder.write_result_folder`); None writes nothing.
+        settings: The run's :class:`~easyhoi.settings.RunSettings`, or a configuration to
+            resolve them from (None: the default preset).
+        seed: Replaces the run's seed (``optim.seed``) when given; None keeps it. Same input
+            and seed give the same output.
         provided: :class:`easyhoi.perception.chain.Provided` results of other tools.
-        progress: optimizer progress callback ``(stage, iteration, max_iters, losses)``.
-        say: callback for perception step names.
+        progress: Optimizer progress callback ``(stage, iteration, max_iters, losses)``.
+        say: Callback for perception step names.
     """
-    from dataclasses import replace
-
     from easyhoi.io.image import load_image
 
     t0 = time.perf_counter()
@@ -55,13 +57,17 @@ def reconstruct_photo(
     from easyhoi.optim.run import optimize
     from easyhoi.perception.chain import perceive
 
-    cfg = config or get_preset("fast")
-    cfg = replace(cfg, optim=replace(cfg.optim, seed=seed))
-    inp, report = perceive(image.rgb, cfg, progress=say, seed=seed, provided=provided)
-    result = optimize(inp, cfg.optim, progress=progress)
+    if isinstance(settings, RunSettings):
+        run = settings if seed is None else settings.with_seed(seed)
+    else:
+        run = resolve_run(settings, seed=seed)
+    inp, report = perceive(image.rgb, run, progress=say, provided=provided)
+    result = optimize(inp, run.config.optim, hand_model=run.hand_model, progress=progress)
     files = []
-    if out_dir is not None:
-        from easyhoi.io.result_folder import write_result_folder
+    if folder is not None:
+        from easyhoi.result_folder import write_result_folder
 
-        files = write_result_folder(result, inp, Path(out_dir), Path(image_path).name)
+        files = write_result_folder(
+            result, inp, folder, hand_model=run.hand_model, title=Path(image_path).name
+        )
     return Reconstruction(result, inp, report.to_dict(), files, time.perf_counter() - t0)

@@ -36,23 +36,16 @@ _NORMAL_CANDIDATES = 16
 class ICPResult:
     """Outcome of :func:`icp`; the transform is ``x -> s * R @ x + t``.
 
-    Attributes
-    ----------
-    R : (3, 3) float64
-        Rotation (identity for the translation modes unless ``init`` had one).
-    t : (3,) float64
-        Translation.
-    s : float
-        Uniform scale (1 for the modes without scale unless ``init`` had one).
-    transformed : (N, 3) float64
-        The source points after the final transform.
-    rmse : (iterations + 1,) float64
-        Root mean square distance of the kept correspondences, before the first update and
-        after each update.
-    iterations : int
-        Number of updates applied.
-    converged : bool
-        True when the RMSE changed by less than ``tol`` before ``max_iters`` was reached.
+    Attributes:
+        R ((3, 3) float64): Rotation (identity for the translation modes unless ``init`` had one).
+        t ((3,) float64): Translation.
+        s (float): Uniform scale (1 for the modes without scale unless ``init`` had one).
+        transformed ((N, 3) float64): The source points after the final transform.
+        rmse ((iterations + 1,) float64): Root mean square distance of the kept correspondences,
+            before the first update and after each update.
+        iterations (int): Number of updates applied.
+        converged (bool): True when the RMSE changed by less than ``tol`` before ``max_iters`` was
+            reached.
     """
 
     R: np.ndarray
@@ -160,38 +153,28 @@ def icp(
 ) -> ICPResult:
     """Register ``source`` onto ``target`` by iterative closest point.
 
-    Parameters
-    ----------
-    source : (N, 3) array or tensor
-        Points to move.
-    target : (M, 3) array or tensor
-        Fixed points.
-    mode : str
-        ``"translation"``, ``"translation_scale"``, ``"rigid"`` or ``"rigid_scale"``; the
-        parameters a mode does not fit stay at their ``init`` value.
-    max_iters : int
-        Maximum number of updates, >= 1.
-    tol : float
-        Stop when the RMSE of two successive iterations differs by less than this (same units).
-    point_to_plane : bool
-        Use the linearised point-to-plane update (needs ``target_normals``; modes ``"rigid"``
-        and ``"translation"`` only).
-    target_normals : (M, 3), optional
-        Unit normals of the target points.
-    source_normals : (N, 3), optional
-        Unit normals of the source points (rotated with the source).
-    normal_max_angle : float, optional
-        Radians; pair each source point with the nearest of its 16 nearest targets whose
-        normal differs by at most this angle, and drop it when there is none (needs both
-        normal sets).
-    trim_fraction : float
-        In [0, 1): discard this fraction of the pairs with the largest distances each iteration.
-    init : (R (3, 3), t (3,), s), optional
-        Initial transform; identity by default.
+    Args:
+        source ((N, 3) array or tensor): Points to move.
+        target ((M, 3) array or tensor): Fixed points.
+        mode (str): ``"translation"``, ``"translation_scale"``, ``"rigid"`` or ``"rigid_scale"``;
+            the parameters a mode does not fit stay at their ``init`` value.
+        max_iters (int): Maximum number of updates, >= 1.
+        tol (float): Stop when the RMSE of two successive iterations differs by less than this (same
+            units).
+        point_to_plane (bool): Use the linearised point-to-plane update (needs ``target_normals``;
+            modes ``"rigid"`` and ``"translation"`` only).
+        target_normals ((M, 3), optional): Unit normals of the target points.
+        source_normals ((N, 3), optional): Unit normals of the source points (rotated with the
+            source).
+        normal_max_angle (float, optional): Radians; pair each source point with the nearest of its
+            16 nearest targets whose normal differs by at most this angle, and drop it when there is
+            none (needs both normal sets).
+        trim_fraction (float): In [0, 1): discard this fraction of the pairs with the largest
+            distances each iteration.
+        init ((R (3, 3), t (3,), s), optional): Initial transform; identity by default.
 
-    Returns
-    -------
-    ICPResult
+    Returns:
+        ICPResult
     """
     src = _as_points(source, "source")
     tgt = _as_points(target, "target")
@@ -280,22 +263,17 @@ def icp(
 def align_translation_scale(
     pred_pts, gt_pts, max_iters: int = 100, tol: float = 1e-10
 ) -> ICPResult:
-    """Evaluation alignment of METHOD.md section 3: translation + uniform scale, no rotation.
+    """Evaluation alignment of docs/method.md section 3: translation + uniform scale, no rotation.
 
     First match centroids and RMS radii (``s0 = rms(gt - c_gt) / rms(pred - c_pred)``,
     ``t0 = c_gt - s0 * c_pred``), then refine by translation + scale ICP of ``pred`` onto ``gt``.
 
-    Parameters
-    ----------
-    pred_pts : (N, 3)
-        Predicted surface samples.
-    gt_pts : (M, 3)
-        Ground-truth surface samples.
+    Args:
+        pred_pts ((N, 3)): Predicted surface samples.
+        gt_pts ((M, 3)): Ground-truth surface samples.
 
-    Returns
-    -------
-    ICPResult
-        ``R`` is the identity; ``transformed`` holds the aligned prediction.
+    Returns:
+        ICPResult: ``R`` is the identity; ``transformed`` holds the aligned prediction.
     """
     pred = _as_points(pred_pts, "pred_pts")
     gt = _as_points(gt_pts, "gt_pts")

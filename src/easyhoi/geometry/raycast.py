@@ -66,31 +66,21 @@ def cast_rays_all_hits(
     Hits closer than ``dedup_tol`` along one ray are merged (a ray through a shared edge is
     reported once per adjacent face by Embree).
 
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-        The mesh to hit.
-    origins : (N, 3) float
-        Ray origins. Only hits in front of the origin (depth >= 0) count.
-    directions : (N, 3) float
-        Ray directions, non-zero (normalised here; depths are Euclidean distances).
-    max_hits : int
-        K, the number of hit layers kept (4 matches the optimizer's depth peeling).
-    backend : str
-        ``"auto"``, ``"embree"`` or ``"triangle"`` (see :func:`ray_intersector`).
-    dedup_tol : float, optional
-        Merge distance; default ``1e-7`` times the mesh's bounding-box diagonal.
+    Args:
+        mesh (trimesh.Trimesh): The mesh to hit.
+        origins ((N, 3) float): Ray origins. Only hits in front of the origin (depth >= 0) count.
+        directions ((N, 3) float): Ray directions, non-zero (normalised here; depths are Euclidean
+            distances).
+        max_hits (int): K, the number of hit layers kept (4 matches the optimizer's depth peeling).
+        backend (str): ``"auto"``, ``"embree"`` or ``"triangle"`` (see :func:`ray_intersector`).
+        dedup_tol (float, optional): Merge distance; default ``1e-7`` times the mesh's bounding-box
+            diagonal.
 
-    Returns
-    -------
-    points : (N, K, 3) float64
-        Hit positions; zeros where invalid.
-    face_ids : (N, K) int64
-        Hit faces; -1 where invalid.
-    depths : (N, K) float64
-        Distance from the origin; ``inf`` where invalid.
-    valid : (N, K) bool
-        Which layers hold a hit.
+    Returns:
+        points ((N, K, 3) float64): Hit positions; zeros where invalid.
+        face_ids ((N, K) int64): Hit faces; -1 where invalid.
+        depths ((N, K) float64): Distance from the origin; ``inf`` where invalid.
+        valid ((N, K) bool): Which layers hold a hit.
     """
     validate_mesh(mesh)
     o, d = _check_rays(origins, directions)
@@ -142,9 +132,8 @@ def cast_rays_first_hit(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Nearest hit per ray: ``cast_rays_all_hits(..., max_hits=1)`` without the layer axis.
 
-    Returns
-    -------
-    points : (N, 3) float64, face_ids : (N,) int64, depths : (N,) float64, valid : (N,) bool
+    Returns:
+        points: (N, 3) float64, face_ids : (N,) int64, depths : (N,) float64, valid : (N,) bool
     """
     p, f, t, v = cast_rays_all_hits(mesh, origins, directions, max_hits=1, backend=backend)
     return p[:, 0], f[:, 0], t[:, 0], v[:, 0]

@@ -18,23 +18,16 @@ def sample_surface(
     inside the face (``u = 1 - sqrt(r1)``, ``v = sqrt(r1) * (1 - r2)``, ``w = sqrt(r1) * r2``).
     The same mesh, ``n`` and ``seed`` always give the same samples.
 
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-        A non-empty mesh with positive total area.
-    n : int
-        Number of samples, >= 0.
-    seed : int
-        Seed of the numpy random generator.
+    Args:
+        mesh (trimesh.Trimesh): A non-empty mesh with positive total area.
+        n (int): Number of samples, >= 0.
+        seed (int): Seed of the numpy random generator.
 
-    Returns
-    -------
-    points : (n, 3) float64
-        Sample positions.
-    face_ids : (n,) int64
-        Index of the face each sample lies on.
-    normals : (n, 3) float64
-        Unit normal of that face (winding order: counter-clockwise faces point outward).
+    Returns:
+        points ((n, 3) float64): Sample positions.
+        face_ids ((n,) int64): Index of the face each sample lies on.
+        normals ((n, 3) float64): Unit normal of that face (winding order: counter-clockwise faces
+            point outward).
     """
     validate_mesh(mesh)
     if not isinstance(n, int | np.integer) or n < 0:

@@ -1,6 +1,6 @@
 """Signed distance fields of watertight meshes: exact values and a differentiable grid.
 
-Sign convention: negative inside the object, positive outside (METHOD.md section 2.2).
+Sign convention: negative inside the object, positive outside (docs/method.md section 2.2).
 
 The grid stores the exact signed distance at its nodes: node ``(i, j, k)`` sits at exactly
 ``bounds_min + (i, j, k) * voxel_size`` (``values[i, j, k]``, i along x). :func:`query`
@@ -37,16 +37,12 @@ _COARSE_STEP = 4
 class SDFGrid:
     """A signed distance field sampled on a regular grid of ``resolution ** 3`` nodes.
 
-    Attributes
-    ----------
-    values : (R, R, R) torch.Tensor
-        Signed distance at the nodes, ``values[i, j, k]`` at ``bounds_min + (i, j, k) * voxel``.
-    bounds_min : (3,) torch.Tensor
-        Position of node (0, 0, 0).
-    bounds_max : (3,) torch.Tensor
-        Position of node (R-1, R-1, R-1).
-    resolution : int
-        R, the number of nodes along each axis (>= 2).
+    Attributes:
+        values ((R, R, R) torch.Tensor): Signed distance at the nodes, ``values[i, j, k]`` at
+            ``bounds_min + (i, j, k) * voxel``.
+        bounds_min ((3,) torch.Tensor): Position of node (0, 0, 0).
+        bounds_max ((3,) torch.Tensor): Position of node (R-1, R-1, R-1).
+        resolution (int): R, the number of nodes along each axis (>= 2).
     """
 
     values: torch.Tensor
@@ -103,9 +99,9 @@ class SDFGrid:
 def _pseudo_normals(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Angle-weighted vertex normals, edge normals (face-edge indexed) and face normals.
 
-    Returns
-    -------
-    vertex_n : (V, 3), edge_n : (F, 3, 3) normal of edge j = (f[:, j], f[:, j+1]), face_n : (F, 3)
+    Returns:
+        vertex_n ((V, 3)), edge_n ((F, 3, 3): the normal of edge j = (f[:, j], f[:, j+1])) and
+        face_n ((F, 3)).
     """
     tri = v[f]  # (F, 3, 3)
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -155,19 +151,13 @@ def exact_signed_distance(
     vertex; Baerentzen and Aanaes 2005), exact for closed, consistently oriented meshes; or, with
     ``sign="winding"``, from the fast generalised winding number, robust on open meshes.
 
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-        The surface; watertight for ``sign="pseudonormal"``.
-    points : (N, 3) float
-        Query positions.
-    sign : str
-        ``"pseudonormal"`` or ``"winding"``.
+    Args:
+        mesh (trimesh.Trimesh): The surface; watertight for ``sign="pseudonormal"``.
+        points ((N, 3) float): Query positions.
+        sign (str): ``"pseudonormal"`` or ``"winding"``.
 
-    Returns
-    -------
-    (N,) float64
-        Signed distances, negative inside.
+    Returns:
+        (N,) float64: Signed distances, negative inside.
     """
     validate_mesh(mesh)
     p = np.asarray(points, dtype=np.float64)
@@ -198,15 +188,13 @@ def pseudonormal_signed_distance(points: np.ndarray, v: np.ndarray, f: np.ndarra
     The sign is exact for closed, consistently wound meshes; on an open but consistently wound
     surface it is the side of the closest feature, reliable near that surface.
 
-    Parameters
-    ----------
-    points : (N, 3) float64
-    v : (V, 3) float64
-    f : (F, 3) int64
+    Args:
+        points: (N, 3) float64
+        v: (V, 3) float64
+        f: (F, 3) int64
 
-    Returns
-    -------
-    (N,) float64
+    Returns:
+        (N,) float64
     """
     p = np.ascontiguousarray(points, dtype=np.float64)
     v = np.ascontiguousarray(v, dtype=np.float64)
@@ -258,23 +246,17 @@ def build_sdf_grid(
     * elsewhere (``|d| > b * voxel``) a value within ``4 * sqrt(3) * voxel`` (one coarse cell
       diagonal) of the exact one; see :func:`_banded_values` for the per-node bound.
 
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-        A watertight mesh (see :func:`easyhoi.geometry.watertight.make_watertight`).
-    resolution : int
-        R, nodes per axis (>= 2); voxel size = side / (R - 1).
-    padding : float
-        Margin around the mesh as a fraction of its largest extent, >= 0.
-    dtype : torch.dtype
-        dtype of the stored tensors.
-    exact_band : float or None
-        Half-width, in voxels (>= 0), of the band around the surface where values are exact;
-        None for exact values at every node.
+    Args:
+        mesh (trimesh.Trimesh): A watertight mesh (see
+            :func:`easyhoi.geometry.watertight.make_watertight`).
+        resolution (int): R, nodes per axis (>= 2); voxel size = side / (R - 1).
+        padding (float): Margin around the mesh as a fraction of its largest extent, >= 0.
+        dtype (torch.dtype): dtype of the stored tensors.
+        exact_band (float or None): Half-width, in voxels (>= 0), of the band around the surface
+            where values are exact; None for exact values at every node.
 
-    Returns
-    -------
-    SDFGrid
+    Returns:
+        SDFGrid
     """
     validate_mesh(mesh, require_watertight=True)
     if not isinstance(resolution, int) or resolution < 2:
@@ -322,11 +304,10 @@ def _banded_values(
        interpolation of the corners' ``|d|`` clipped to ``[lower, upper]``, hence within
        ``upper - lower <= 2 min_y r_y <=`` one coarse cell diagonal of the truth.
 
-    Returns
-    -------
-    values : (R, R, R) float64
-    error_bound : (R, R, R) float64
-        ``|values - d| <= error_bound``; 0 at exactly computed nodes.
+    Returns:
+        values: (R, R, R) float64
+        error_bound ((R, R, R) float64): ``|values - d| <= error_bound``; 0 at exactly computed
+            nodes.
     """
     res = len(axes[0])
     ci = np.unique(np.r_[np.arange(0, res, _COARSE_STEP), res - 1])
@@ -390,17 +371,13 @@ def query(grid: SDFGrid, points: torch.Tensor) -> torch.Tensor:
     distance to the box plus the value at the nearest box point: an upper bound on the true
     distance that grows correctly away from the object (a plain clamp would be flat).
 
-    Parameters
-    ----------
-    grid : SDFGrid
-        The field; its values are cast to the dtype and device of ``points``.
-    points : (..., 3) torch.Tensor
-        Query positions, in the same frame as the grid bounds.
+    Args:
+        grid (SDFGrid): The field; its values are cast to the dtype and device of ``points``.
+        points ((..., 3) torch.Tensor): Query positions, in the same frame as the grid bounds.
 
-    Returns
-    -------
-    (...,) torch.Tensor
-        Signed distances, differentiable w.r.t. ``points`` (and ``grid.values``).
+    Returns:
+        (...,) torch.Tensor: Signed distances, differentiable w.r.t. ``points`` (and
+            ``grid.values``).
     """
     if not isinstance(points, torch.Tensor):
         raise InvalidInputError(f"points must be a torch.Tensor, got {type(points).__name__}")

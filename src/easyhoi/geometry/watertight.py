@@ -1,4 +1,4 @@
-"""Make object meshes watertight (METHOD.md section 2.1 step 6).
+"""Make object meshes watertight (docs/method.md section 2.1 step 6).
 
 Two routes:
 

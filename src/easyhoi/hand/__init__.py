@@ -32,10 +32,28 @@ def load_hand_model(
     raise InvalidInputError(f"unknown hand model {name!r}; choose one of {HAND_MODELS}")
 
 
+def builtin_hand_model(name: str, dtype: torch.dtype = torch.float32) -> HandModel:
+    """The built-in hand model called ``name``: the one model that needs no user file.
+
+    For callers that take an optional model and default to the built-in one. A MANO model is
+    the user's file and is loaded once per run (:func:`easyhoi.settings.resolve_run`), so asking
+    for it here is an error that says so.
+    """
+    if name == "open":
+        return load_hand_model("open", dtype=dtype)
+    if name == "mano":
+        raise InvalidInputError(
+            "the MANO hand model is not built in: load it once with "
+            "easyhoi.settings.resolve_run (or load_hand_model('mano', mano_dir)) and pass it on"
+        )
+    raise InvalidInputError(f"unknown hand model {name!r}; choose one of {HAND_MODELS}")
+
+
 __all__ = [
     "HAND_MODELS",
     "HandModel",
     "HandRegions",
+    "builtin_hand_model",
     "load_hand_model",
     "mirror_params",
     "mirror_points",

@@ -75,16 +75,13 @@ class MANONotFoundError(InvalidInputError):
 def find_mano_file(path: str | Path | None = None) -> Path:
     """Locate a MANO pickle.
 
-    Parameters
-    ----------
-    path : str, Path or None
-        A ``.pkl`` file, or a folder holding ``MANO_RIGHT.pkl`` (or ``MANO_LEFT.pkl``), directly
-        or under ``models/``. ``None`` reads the folder from ``$EASYHOI_MANO_DIR``.
+    Args:
+        path (str, Path or None): A ``.pkl`` file, or a folder holding ``MANO_RIGHT.pkl`` (or
+            ``MANO_LEFT.pkl``), directly or under ``models/``. ``None`` reads the folder from
+            ``$EASYHOI_MANO_DIR``.
 
-    Raises
-    ------
-    MANONotFoundError
-        Nothing found; the message explains how to obtain and pass the file.
+    Raises:
+        MANONotFoundError: Nothing found; the message explains how to obtain and pass the file.
     """
     if path is None:
         env = os.environ.get(MANO_ENV_VAR, "").strip()
@@ -146,7 +143,7 @@ def left_to_right_mano(data: dict[str, np.ndarray], fix_shapedirs: bool = True) 
     correctives and pose PCA conjugated by ``M = diag(-1, 1, 1)``. A pose feature entry
     ``(R - I)[a, b]`` of the left hand equals ``m_a m_b`` times the right one, and an offset's
     coordinate ``c`` changes sign with ``m_c``. The released MANO_LEFT ``shapedirs`` carry the
-    wrong sign on x (METHOD.md section 5): the corrected left directions have x negated and
+    wrong sign on x (docs/method.md section 5): the corrected left directions have x negated and
     mirroring negates x again, so with ``fix_shapedirs`` (the released files) they are kept
     as stored; pass ``False`` for a file whose shapedirs were already corrected.
     """
@@ -171,10 +168,9 @@ def close_boundary_loops(faces: np.ndarray) -> tuple[np.ndarray, list[list[int]]
     ``(l_0, l_{i+1}, l_i)`` for ``i = 1 .. n-2`` traverses every boundary edge backwards, so the
     added ``n - 2`` faces have the winding of the rest of the mesh.
 
-    Returns
-    -------
-    closed : (F + sum(n - 2), 3) int64, the input faces followed by the fans.
-    loops : the boundary loops (vertex ids in boundary-edge order).
+    Returns:
+        closed: (F + sum(n - 2), 3) int64, the input faces followed by the fans.
+        loops: the boundary loops (vertex ids in boundary-edge order).
     """
     faces = np.asarray(faces, dtype=np.int64)
     directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
@@ -226,22 +222,18 @@ def _resolve_tips(tips: str | Sequence[int]) -> tuple[int, ...]:
 class MANOHand(HandModel):
     """The MANO hand model, read from a user-supplied file (right hands; left by mirroring).
 
-    Parameters
-    ----------
-    path : str, Path or None
-        ``MANO_RIGHT.pkl`` (or ``MANO_LEFT.pkl``, converted to the right model), a folder
-        holding it, or ``None`` to use ``$EASYHOI_MANO_DIR``.
-    flat_hand_mean : bool
-        True (default): ``HandParams.pose`` is relative to the flat hand. False: MANO's
-        ``hands_mean`` is added to it (the pose is relative to the mean hand).
-    tips : str or sequence of 5 ints
-        Fingertip vertices (thumb, index, middle, ring, pinky): ``"smplx"`` (744, 320, 443,
-        554, 671; default), ``"alternate"`` (745, 317, 444, 556, 673) or explicit ids.
-    side : "right", "left" or None
-        Which hand the file holds; ``None`` guesses from the file name ("LEFT" -> left).
-    fix_left_shapedirs : bool
-        For a left file, whether its shapedirs have MANO_LEFT's x-sign error (see
-        :func:`left_to_right_mano`).
+    Args:
+        path (str, Path or None): ``MANO_RIGHT.pkl`` (or ``MANO_LEFT.pkl``, converted to the right
+            model), a folder holding it, or ``None`` to use ``$EASYHOI_MANO_DIR``.
+        flat_hand_mean (bool): True (default): ``HandParams.pose`` is relative to the flat hand.
+            False: MANO's ``hands_mean`` is added to it (the pose is relative to the mean hand).
+        tips (str or sequence of 5 ints): Fingertip vertices (thumb, index, middle, ring, pinky):
+            ``"smplx"`` (744, 320, 443, 554, 671; default), ``"alternate"`` (745, 317, 444, 556,
+            673) or explicit ids.
+        side ("right", "left" or None): Which hand the file holds; ``None`` guesses from the file
+            name ("LEFT" -> left).
+        fix_left_shapedirs (bool): For a left file, whether its shapedirs have MANO_LEFT's x-sign
+            error (see :func:`left_to_right_mano`).
 
     Buffers: ``v_template`` (778, 3), ``shapedirs`` (778, 3, 10), ``posedirs`` (135, 2334),
     ``J_regressor`` (16, 778) dense, ``skin_weights`` (778, 16), ``faces`` (1552, 3) closed,
@@ -320,16 +312,14 @@ class MANOHand(HandModel):
     def pose_from_pca(self, coeffs: torch.Tensor, side: str = "right") -> torch.Tensor:
         """Articulation from MANO's pose PCA.
 
-        Parameters
-        ----------
-        coeffs : (B, k) tensor, ``1 <= k <= 45``, coefficients of the first k components.
-        side : the hand the pose is for (left poses are mirrored components).
+        Args:
+            coeffs: (B, k) tensor, ``1 <= k <= 45``, coefficients of the first k components.
+            side: the hand the pose is for (left poses are mirrored components).
 
-        Returns
-        -------
-        (B, 45) ``HandParams.pose`` for this model: ``coeffs @ hands_components[:k]``. With
-        ``flat_hand_mean=False`` the forward pass adds ``hands_mean``, as MANO does for PCA poses;
-        with the default flat mean the components act around the flat hand.
+        Returns:
+            (B, 45) ``HandParams.pose`` for this model: ``coeffs @ hands_components[:k]``. With
+            ``flat_hand_mean=False`` the forward pass adds ``hands_mean``, as MANO does for PCA
+            poses; with the default flat mean the components act around the flat hand.
         """
         coeffs = torch.as_tensor(coeffs)
         if coeffs.ndim != 2 or not 1 <= coeffs.shape[1] <= NUM_POSE:

@@ -158,8 +158,75 @@ def _sparse_value(obj: _SparseStandIn) -> sp.spmatrix:
     return cls(arrays, shape=_plain_shape(shape))
 
 
+#: Largest pickle read (bytes). A MANO model file is about 4 MB and a hand-parameter file a few
+#: kB; the unpickler allocates in proportion to the file, so this bounds its memory too.
+MAX_PICKLE_BYTES = 256 * 1024 * 1024
+
+#: Largest number of values the loaded content may expand to when every reference to a shared
+#: list, tuple, dict or chumpy object is counted as a copy. A MANO file expands to a few hundred;
+#: a few hundred bytes of lists that each reference the previous one twice expand to 2**depth.
+MAX_EXPANDED_VALUES = 1_000_000
+
+
+def _children(obj) -> list:
+    if isinstance(obj, _StateHolder):
+        return [obj.state] if isinstance(obj.state, dict | list | tuple) else []
+    if isinstance(obj, dict):
+        return list(obj.values())
+    if isinstance(obj, list | tuple):
+        return list(obj)
+    return []
+
+
+def check_expansion(obj, limit: int = MAX_EXPANDED_VALUES) -> int:
+    """Number of values ``obj`` holds with shared references counted once per reference.
+
+    Refuses (:class:`~easyhoi.errors.UnsafeFileError`) a container that contains itself and
+    content that expands beyond ``limit`` values, in time linear in the distinct containers
+    (each one's expanded size is computed once), before anything walks the content as a tree.
+    """
+    sizes: dict[int, int] = {}
+    on_path: set[int] = set()
+    stack: list[tuple[object, bool]] = [(obj, False)]
+    keep = []  # keeps visited objects alive so their ids stay unique
+    while stack:
+        node, done = stack.pop()
+        kids = _children(node)
+        if not kids and not isinstance(node, dict | list | tuple | _StateHolder):
+            continue
+        key = id(node)
+        if done:
+            on_path.discard(key)
+            total = 1 + sum(sizes.get(id(k), 1) for k in _children(node))
+            if total > limit:
+                raise UnsafeFileError(
+                    f"refused the pickle: its containers reference each other so often that "
+                    f"it expands to more than {limit:,} values"
+                )
+            sizes[key] = total
+            continue
+        if key in sizes:
+            continue
+        if key in on_path:
+            raise UnsafeFileError("refused the pickle: a container in it contains itself")
+        on_path.add(key)
+        keep.append(node)
+        stack.append((node, True))
+        for k in kids:
+            if isinstance(k, dict | list | tuple | _StateHolder) and id(k) not in sizes:
+                if id(k) in on_path:
+                    raise UnsafeFileError("refused the pickle: a container in it contains itself")
+                stack.append((k, False))
+    return sizes.get(id(obj), 1)
+
+
 def to_plain(obj, depth: int = 0):
-    """Replace every stand-in inside ``obj`` (recursively) by a numpy array / sparse matrix."""
+    """Replace every stand-in inside ``obj`` (recursively) by a numpy array / sparse matrix.
+
+    The top-level call first bounds the work (:func:`check_expansion`).
+    """
+    if depth == 0:
+        check_expansion(obj)
     if depth > 64:
         raise UnsafeFileError("chumpy expression nested too deeply")
     if isinstance(obj, ChumpyStandIn):
@@ -171,6 +238,29 @@ def to_plain(obj, depth: int = 0):
     if isinstance(obj, list | tuple):
         return type(obj)(to_plain(v, depth + 1) for v in obj)
     return obj
+
+
+def read_pickle_bytes(path: Path, what: str = "pickle") -> bytes:
+    """The bytes of ``path``, refusing files over :data:`MAX_PICKLE_BYTES` before reading."""
+    try:
+        size = path.stat().st_size
+        if size > MAX_PICKLE_BYTES:
+            raise InvalidInputError(
+                f"{path} is {size / 2**20:.0f} MiB; a {what} larger than "
+                f"{MAX_PICKLE_BYTES // 2**20} MiB is refused"
+            )
+        return path.read_bytes()
+    except OSError as exc:
+        raise InvalidInputError(f"cannot read the {what} {path}: {exc}") from None
+
+
+def load_restricted(path: Path, what: str = "pickle"):
+    """Unpickle ``path`` with :class:`RestrictedUnpickler` after the size check (no stand-in
+    evaluation; see :func:`to_plain`)."""
+    import io
+
+    data = read_pickle_bytes(path, what)
+    return RestrictedUnpickler(io.BytesIO(data)).load()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -274,33 +364,24 @@ class RestrictedUnpickler(pickle.Unpickler):
 def load_mano_pickle(path: str | Path) -> dict[str, Any]:
     """Read a MANO ``.pkl`` safely and return its content with plain numpy / scipy values.
 
-    Parameters
-    ----------
-    path : str or Path
-        The pickle file (Python-2 pickles are read with ``encoding="latin1"``).
+    Args:
+        path (str or Path): The pickle file (Python-2 pickles are read with ``encoding="latin1"``).
 
-    Returns
-    -------
-    dict
-        Keys of the file (``v_template`` (778, 3), ``shapedirs`` (778, 3, 10), ``J_regressor``
-        (16, 778) sparse, ...); chumpy objects become ``np.ndarray``, sparse matrices become
-        ``scipy.sparse`` csc / csr matrices.
+    Returns:
+        dict: Keys of the file (``v_template`` (778, 3), ``shapedirs`` (778, 3, 10), ``J_regressor``
+            (16, 778) sparse, ...); chumpy objects become ``np.ndarray``, sparse matrices become
+            ``scipy.sparse`` csc / csr matrices.
 
-    Raises
-    ------
-    UnsafeFileError
-        The file names a global outside the allow-list (nothing it names is ever called).
-    InvalidInputError
-        The file cannot be read, is not a pickle, or does not hold a dictionary.
+    Raises:
+        UnsafeFileError: The file names a global outside the allow-list (nothing it names is ever
+            called).
+        InvalidInputError: The file cannot be read, is not a pickle, or does not hold a dictionary.
     """
     path = Path(path)
     try:
-        with path.open("rb") as fh:
-            data = RestrictedUnpickler(fh).load()
-    except UnsafeFileError:
+        data = load_restricted(path, "MANO file")
+    except (UnsafeFileError, InvalidInputError):
         raise
-    except OSError as exc:
-        raise InvalidInputError(f"cannot read the MANO file {path}: {exc}") from None
     except Exception as exc:  # noqa: BLE001 - any decoding failure means a corrupt file
         raise InvalidInputError(
             f"{path} is not a readable MANO pickle ({type(exc).__name__}: {exc})"
@@ -309,4 +390,5 @@ def load_mano_pickle(path: str | Path) -> dict[str, Any]:
         raise InvalidInputError(
             f"{path} does not hold a dictionary (got {type(data).__name__}); is it a MANO file?"
         )
+    check_expansion(data)
     return {str(k): to_plain(v) for k, v in data.items()}

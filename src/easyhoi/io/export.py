@@ -71,21 +71,15 @@ def metric_camera(result: HOIResult) -> Camera:
 def camera_gltf(camera: Camera, znear: float = 0.01) -> tuple[dict, np.ndarray]:
     """A glTF perspective camera and its node pose for an OpenCV camera.
 
-    Parameters
-    ----------
-    camera : Camera
-        World-to-camera extrinsics in the glTF scene's units.
-    znear : float
-        Near plane distance (scene units), > 0.
+    Args:
+        camera (Camera): World-to-camera extrinsics in the glTF scene's units.
+        znear (float): Near plane distance (scene units), > 0.
 
-    Returns
-    -------
-    gltf_camera : dict
-        ``{"type": "perspective", "perspective": {yfov, aspectRatio, znear}, "extras": {...}}``
-        with ``yfov = 2 atan(H / (2 fy))`` and ``aspectRatio = W fy / (H fx)`` (so the
-        horizontal field of view is ``2 atan(W / (2 fx))``).
-    pose : (4, 4) float64
-        Camera-to-world matrix with glTF camera axes (y up, looking down -z).
+    Returns:
+        gltf_camera (dict): ``{"type": "perspective", "perspective": {yfov, aspectRatio, znear},
+            "extras": {...}}`` with ``yfov = 2 atan(H / (2 fy))`` and ``aspectRatio = W fy / (H
+            fx)`` (so the horizontal field of view is ``2 atan(W / (2 fx))``).
+        pose ((4, 4) float64): Camera-to-world matrix with glTF camera axes (y up, looking down -z).
     """
     c = camera.detach()
     K = c.K.double().numpy()

@@ -293,7 +293,7 @@ def save_hoi_result(result: HOIResult, folder: str | Path) -> Path:
 
 def load_hoi_result(folder: str | Path) -> HOIResult:
     """Read a folder written by :func:`save_hoi_result` or a result folder of ``easyhoi
-    reconstruct`` (:func:`easyhoi.io.result_folder.write_result_folder`: ``result.json`` in the
+    reconstruct`` (:func:`easyhoi.result_folder.write_result_folder`: ``result.json`` in the
     export schema with ``hand.ply`` / ``object.ply`` in metres).
 
     From a result folder the meshes are brought back to object units (divided by

@@ -122,23 +122,18 @@ def _to_rgb(img) -> np.ndarray:
 def load_image(path: str | Path, max_side: int | None = 1600) -> LoadedImage:
     """Load a photo as 8-bit RGB.
 
-    Parameters
-    ----------
-    path : str or Path
-        Photo file; the format is detected from the content, not the extension.
-    max_side : int or None
-        Photos whose longer side exceeds this are downscaled (aspect kept, area interpolation)
-        so that the longer side equals ``max_side``; None keeps the full resolution.
+    Args:
+        path (str or Path): Photo file; the format is detected from the content, not the extension.
+        max_side (int or None): Photos whose longer side exceeds this are downscaled (aspect kept,
+            area interpolation) so that the longer side equals ``max_side``; None keeps the full
+            resolution.
 
-    Returns
-    -------
-    LoadedImage
-        ``rgb`` is (H, W, 3) uint8.
+    Returns:
+        LoadedImage: ``rgb`` is (H, W, 3) uint8.
 
-    Raises
-    ------
-    InvalidInputError
-        Missing, empty, corrupt or unsupported files, and photos with a side < 32 px.
+    Raises:
+        InvalidInputError: Missing, empty, corrupt or unsupported files, and photos with a side < 32
+            px.
     """
     from PIL import Image, ImageOps
 
@@ -196,22 +191,15 @@ def load_mask(path: str | Path, size: tuple[int, int] | None = None) -> np.ndarr
     decided by :func:`_mask_polarity`: the foreground is the level touching the image border
     less, the minority level on a tie.
 
-    Parameters
-    ----------
-    path : str or Path
-        Mask file.
-    size : (width, height) or None
-        Expected size (the image's); a mismatch raises.
+    Args:
+        path (str or Path): Mask file.
+        size ((width, height) or None): Expected size (the image's); a mismatch raises.
 
-    Returns
-    -------
-    np.ndarray
-        (H, W) bool mask.
+    Returns:
+        np.ndarray: (H, W) bool mask.
 
-    Raises
-    ------
-    InvalidInputError
-        Unreadable file, or a size different from ``size``.
+    Raises:
+        InvalidInputError: Unreadable file, or a size different from ``size``.
     """
     img = _open(path)
     arr = _to_uint8_array(img)

@@ -1,4 +1,4 @@
-"""Evaluation metrics with the published conventions (METHOD.md section 3; docs/metrics.md).
+"""Evaluation metrics with the published conventions (docs/method.md section 3; docs/metrics.md).
 
 Inputs are in metres; outputs in centimetres (cm, cm^2, cm^3) as the papers report.
 """

@@ -1,4 +1,4 @@
-"""Hand pose metrics: MPJPE and MPVPE in centimetres (METHOD.md section 3).
+"""Hand pose metrics: MPJPE and MPVPE in centimetres (docs/method.md section 3).
 
 Inputs are in METRES; errors are mean Euclidean distances per point, in cm. Alignments:
 
@@ -67,19 +67,14 @@ def align_hands(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Apply one of the alignments to a batch of predicted / ground-truth point sets.
 
-    Parameters
-    ----------
-    pred, gt : (B, N, 3) or (N, 3) array or tensor
-        Joints or vertices, metres.
-    align : {"none", "root", "rotation", "procrustes"}
-        See the module docstring.
-    pred_root, gt_root : (B, 3) or (3,), optional
-        Root positions for "root" / "rotation"; default: point 0 of each set (the wrist for
-        MANO joints and keypoints).
+    Args:
+        pred, gt ((B, N, 3) or (N, 3) array or tensor): Joints or vertices, metres.
+        align ({"none", "root", "rotation", "procrustes"}): See the module docstring.
+        pred_root, gt_root ((B, 3) or (3,), optional): Root positions for "root" / "rotation";
+            default: point 0 of each set (the wrist for MANO joints and keypoints).
 
-    Returns
-    -------
-    (pred_aligned, gt_aligned) : (B, N, 3) float64 each, metres.
+    Returns:
+        (pred_aligned, gt_aligned) : (B, N, 3) float64 each, metres.
     """
     p = _batched_points(pred, "pred")
     g = _batched_points(gt, "gt")
@@ -123,21 +118,18 @@ def mpjpe(
 ) -> float | np.ndarray:
     """Mean per-joint position error, cm.
 
-    Parameters
-    ----------
-    pred, gt : (B, J, 3) or (J, 3) array or tensor
-        Joints (usually the 21 keypoints), metres, in the same order.
-    align : {"none", "root", "rotation", "procrustes"}
-        Alignment before measuring (module docstring); "rotation" is EasyHOI's convention.
-    reduction : {"mean", "none"}
-        "mean": a float averaged over the batch; "none": (B,) per-sample errors.
-    root_index : int
-        Joint used as the root by "root" and "rotation" (0 = wrist in MANO and OpenPose order).
+    Args:
+        pred, gt ((B, J, 3) or (J, 3) array or tensor): Joints (usually the 21 keypoints), metres,
+            in the same order.
+        align ({"none", "root", "rotation", "procrustes"}): Alignment before measuring (module
+            docstring); "rotation" is EasyHOI's convention.
+        reduction ({"mean", "none"}): "mean": a float averaged over the batch; "none": (B,)
+            per-sample errors.
+        root_index (int): Joint used as the root by "root" and "rotation" (0 = wrist in MANO and
+            OpenPose order).
 
-    Returns
-    -------
-    float or (B,) float
-        Error in cm.
+    Returns:
+        float or (B,) float: Error in cm.
     """
     p = _batched_points(pred, "pred")
     g = _batched_points(gt, "gt")
@@ -155,22 +147,18 @@ def mpvpe(
 ) -> float | np.ndarray:
     """Mean per-vertex position error, cm.
 
-    Parameters
-    ----------
-    pred, gt : (B, V, 3) or (V, 3) array or tensor
-        Hand vertices (778 for MANO), metres, in corresponding order.
-    align : {"none", "root", "rotation", "procrustes"}
-        Alignment before measuring (module docstring).
-    reduction : {"mean", "none"}
-        "mean": a float; "none": (B,) per-sample errors.
-    pred_root, gt_root : (B, 3) or (3,), optional
-        Root joints (wrists) for "root" / "rotation"; default: the vertex centroid of each
-        hand. Pass the wrist joints to match the MPJPE root.
+    Args:
+        pred, gt ((B, V, 3) or (V, 3) array or tensor): Hand vertices (778 for MANO), metres, in
+            corresponding order.
+        align ({"none", "root", "rotation", "procrustes"}): Alignment before measuring (module
+            docstring).
+        reduction ({"mean", "none"}): "mean": a float; "none": (B,) per-sample errors.
+        pred_root, gt_root ((B, 3) or (3,), optional): Root joints (wrists) for "root" / "rotation";
+            default: the vertex centroid of each hand. Pass the wrist joints to match the MPJPE
+            root.
 
-    Returns
-    -------
-    float or (B,) float
-        Error in cm.
+    Returns:
+        float or (B,) float: Error in cm.
     """
     p = _batched_points(pred, "pred")
     g = _batched_points(gt, "gt")

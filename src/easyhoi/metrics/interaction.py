@@ -3,7 +3,7 @@
 Inputs are meshes in METRES (``trimesh.Trimesh`` or ``(vertices, faces)``); outputs are in
 centimetres (cm, cm^3) as the papers report them.
 
-Intersection volume, two variants (METHOD.md section 3):
+Intersection volume, two variants (docs/method.md section 3):
 
 - ``"obman"`` (the published convention of ObMan, GraspTTA, EasyHOI): voxelize the OBJECT with
   trimesh's surface voxelization (pitch 0.5 cm), count the voxel centres inside the closed hand
@@ -45,27 +45,21 @@ def intersection_volume(
 ) -> float:
     """Volume shared by the hand and the object, in cm^3.
 
-    Parameters
-    ----------
-    hand_mesh : trimesh.Trimesh or (vertices (V, 3), faces (F, 3))
-        Closed (watertight) hand mesh, metres (MANO with its wrist opening closed: 1552 faces).
-    obj_mesh : trimesh.Trimesh or (vertices, faces)
-        Object mesh, metres. Must be watertight for ``method="solid"``.
-    pitch : float
-        Voxel / grid spacing in metres (0.005 = 0.5 cm in the published protocol).
-    method : {"obman", "solid"}
-        See the module docstring. "obman" reproduces the published numbers (biased);
-        "solid" estimates the true overlap volume.
+    Args:
+        hand_mesh (trimesh.Trimesh or (vertices (V, 3), faces (F, 3))): Closed (watertight) hand
+            mesh, metres (MANO with its wrist opening closed: 1552 faces).
+        obj_mesh (trimesh.Trimesh or (vertices, faces)): Object mesh, metres. Must be watertight for
+            ``method="solid"``.
+        pitch (float): Voxel / grid spacing in metres (0.005 = 0.5 cm in the published protocol).
+        method ({"obman", "solid"}): See the module docstring. "obman" reproduces the published
+            numbers (biased); "solid" estimates the true overlap volume.
 
-    Returns
-    -------
-    float
-        Intersection volume in cm^3.
+    Returns:
+        float: Intersection volume in cm^3.
 
-    Raises
-    ------
-    InvalidInputError
-        Bad meshes, a hand (or, for "solid", an object) that is not watertight, bad pitch.
+    Raises:
+        InvalidInputError: Bad meshes, a hand (or, for "solid", an object) that is not watertight,
+            bad pitch.
     """
     pitch = _check_pitch(pitch)
     if method not in ("obman", "solid"):
@@ -110,17 +104,14 @@ def _signed_depths(hand_vertices: np.ndarray, obj) -> tuple[np.ndarray, np.ndarr
 def penetration_depth(hand_mesh, obj_mesh) -> float:
     """Deepest hand vertex inside the object, in cm (0 when no vertex is inside).
 
-    Parameters
-    ----------
-    hand_mesh : trimesh.Trimesh or (vertices, faces)
-        Hand mesh in metres (only its vertices are used; it need not be closed).
-    obj_mesh : trimesh.Trimesh or (vertices, faces)
-        Closed object mesh in metres.
+    Args:
+        hand_mesh (trimesh.Trimesh or (vertices, faces)): Hand mesh in metres (only its vertices are
+            used; it need not be closed).
+        obj_mesh (trimesh.Trimesh or (vertices, faces)): Closed object mesh in metres.
 
-    Returns
-    -------
-    float
-        ``max`` over hand vertices inside the object of their distance to the object surface, cm.
+    Returns:
+        float: ``max`` over hand vertices inside the object of their distance to the object surface,
+            cm.
     """
     hand = as_mesh(hand_mesh, "hand_mesh")
     obj = as_mesh(obj_mesh, "obj_mesh", watertight=True)
@@ -131,18 +122,13 @@ def penetration_depth(hand_mesh, obj_mesh) -> float:
 def in_contact(hand_mesh, obj_mesh, threshold: float = 0.005) -> bool:
     """GraspTTA contact: any hand vertex inside the object or within ``threshold`` of its surface.
 
-    Parameters
-    ----------
-    hand_mesh : trimesh.Trimesh or (vertices, faces)
-        Hand mesh in metres.
-    obj_mesh : trimesh.Trimesh or (vertices, faces)
-        Closed object mesh in metres.
-    threshold : float
-        Contact distance in metres (0.005 = 5 mm).
+    Args:
+        hand_mesh (trimesh.Trimesh or (vertices, faces)): Hand mesh in metres.
+        obj_mesh (trimesh.Trimesh or (vertices, faces)): Closed object mesh in metres.
+        threshold (float): Contact distance in metres (0.005 = 5 mm).
 
-    Returns
-    -------
-    bool
+    Returns:
+        bool
     """
     threshold = float(threshold)
     if not np.isfinite(threshold) or threshold < 0:
@@ -158,17 +144,12 @@ def in_contact(hand_mesh, obj_mesh, threshold: float = 0.005) -> bool:
 def contact_ratio(pairs: Iterable[tuple], threshold: float = 0.005) -> float:
     """Fraction of hand-object pairs in contact (see :func:`in_contact`).
 
-    Parameters
-    ----------
-    pairs : iterable of (hand_mesh, obj_mesh)
-        Meshes in metres.
-    threshold : float
-        Contact distance in metres.
+    Args:
+        pairs (iterable of (hand_mesh, obj_mesh)): Meshes in metres.
+        threshold (float): Contact distance in metres.
 
-    Returns
-    -------
-    float
-        In [0, 1].
+    Returns:
+        float: In [0, 1].
     """
     flags = [in_contact(h, o, threshold) for h, o in pairs]
     if not flags:

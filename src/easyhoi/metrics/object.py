@@ -1,4 +1,4 @@
-"""Object reconstruction metrics: Chamfer distance and F-score (METHOD.md section 3).
+"""Object reconstruction metrics: Chamfer distance and F-score (docs/method.md section 3).
 
 Convention ("moho", the one MOHO and EasyHOI report): sample 30,000 points on each surface,
 convert metres to centimetres, take squared nearest-neighbour distances,
@@ -34,18 +34,12 @@ CHAMFER_DIVISOR = {"moho": 10.0, "raw": 1.0}
 class Alignment:
     """Similarity applied to the prediction: ``x_aligned = scale * R @ x + translation``.
 
-    Attributes
-    ----------
-    mode : str
-        "none", "translation_scale" or "rigid".
-    scale : float
-        Uniform scale (1 for "none" and "rigid").
-    rotation : (3, 3) float
-        Rotation (identity unless "rigid").
-    translation : (3,) float
-        Translation in metres.
-    iterations : int
-        ICP iterations run.
+    Attributes:
+        mode (str): "none", "translation_scale" or "rigid".
+        scale (float): Uniform scale (1 for "none" and "rigid").
+        rotation ((3, 3) float): Rotation (identity unless "rigid").
+        translation ((3,) float): Translation in metres.
+        iterations (int): ICP iterations run.
     """
 
     mode: str
@@ -63,19 +57,14 @@ class Alignment:
 class ObjectMetrics:
     """Object metrics of one prediction against its ground truth.
 
-    Attributes
-    ----------
-    chamfer : float
-        Chamfer distance, squared cm (divided by 10 under the "moho" convention).
-    fscore, precision, recall : dict[float, float]
-        Keyed by threshold in millimetres; values in [0, 1]. Precision: fraction of predicted
-        samples within the threshold of the ground truth; recall: the converse.
-    alignment : Alignment
-        The transform applied to the prediction before measuring.
-    convention : str
-        "moho" or "raw".
-    n_samples : int
-        Surface samples per mesh.
+    Attributes:
+        chamfer (float): Chamfer distance, squared cm (divided by 10 under the "moho" convention).
+        fscore, precision, recall (dict[float, float]): Keyed by threshold in millimetres; values in
+            [0, 1]. Precision: fraction of predicted samples within the threshold of the ground
+            truth; recall: the converse.
+        alignment (Alignment): The transform applied to the prediction before measuring.
+        convention (str): "moho" or "raw".
+        n_samples (int): Surface samples per mesh.
     """
 
     chamfer: float
@@ -118,22 +107,19 @@ def align_points(
 ) -> Alignment:
     """Align a point set to another by ICP (private stand-in for ``easyhoi.geometry.icp``).
 
-    Parameters
-    ----------
-    source, target : (N, 3), (M, 3) float
-        Points in metres; ``source`` is moved onto ``target``.
-    mode : {"translation_scale", "rigid", "none"}
-        "translation_scale": initialise by matching centroid and RMS radius, then iterate
-        nearest-neighbour correspondences with the closed-form uniform scale + translation.
-        "rigid": initialise by matching centroids, then rotation + translation (Kabsch).
-    max_iterations : int
-        ICP iteration cap.
-    tol : float
-        Stop when the mean squared correspondence distance (m^2) improves by less than this.
+    Args:
+        source, target ((N, 3), (M, 3) float): Points in metres; ``source`` is moved onto
+            ``target``.
+        mode ({"translation_scale", "rigid", "none"}): "translation_scale": initialise by matching
+            centroid and RMS radius, then iterate nearest-neighbour correspondences with the
+            closed-form uniform scale + translation. "rigid": initialise by matching centroids, then
+            rotation + translation (Kabsch).
+        max_iterations (int): ICP iteration cap.
+        tol (float): Stop when the mean squared correspondence distance (m^2) improves by less than
+            this.
 
-    Returns
-    -------
-    Alignment
+    Returns:
+        Alignment
     """
     eye = np.eye(3)
     if mode == "none":
@@ -189,24 +175,18 @@ def chamfer_fscore(
 ) -> ObjectMetrics:
     """Chamfer distance and F-scores between a predicted and a ground-truth object mesh.
 
-    Parameters
-    ----------
-    pred_mesh, gt_mesh : trimesh.Trimesh or (vertices (V, 3), faces (F, 3))
-        Meshes in metres.
-    n_samples : int
-        Points sampled on each surface (30,000 in the published protocol).
-    seed : int
-        Sampling seed, used for both meshes (identical meshes then give exactly 0).
-    align : {"translation_scale", "none", "rigid"}
-        Alignment of the prediction to the ground truth before measuring (see module doc).
-    convention : {"moho", "raw"}
-        "moho": cm^2 sum divided by 10 (MOHO / EasyHOI); "raw": cm^2 sum (gSDF, AlignSDF).
-    thresholds_mm : sequence of float
-        F-score thresholds in millimetres.
+    Args:
+        pred_mesh, gt_mesh (trimesh.Trimesh or (vertices (V, 3), faces (F, 3))): Meshes in metres.
+        n_samples (int): Points sampled on each surface (30,000 in the published protocol).
+        seed (int): Sampling seed, used for both meshes (identical meshes then give exactly 0).
+        align ({"translation_scale", "none", "rigid"}): Alignment of the prediction to the ground
+            truth before measuring (see module doc).
+        convention ({"moho", "raw"}): "moho": cm^2 sum divided by 10 (MOHO / EasyHOI); "raw": cm^2
+            sum (gSDF, AlignSDF).
+        thresholds_mm (sequence of float): F-score thresholds in millimetres.
 
-    Returns
-    -------
-    ObjectMetrics
+    Returns:
+        ObjectMetrics
     """
     if convention not in CHAMFER_DIVISOR:
         raise InvalidInputError(f"convention must be 'moho' or 'raw', got {convention!r}")
@@ -239,15 +219,11 @@ def chamfer_fscore(
 class FScoreSummary:
     """Mean F-score over a dataset, with and without the reference evaluation's skipping.
 
-    Attributes
-    ----------
-    mean_all : float
-        Mean over every sample.
-    mean_skip_zero : float
-        Mean over samples whose F-score is not 0 (the reference evaluation skips samples with
-        F@5 = 0); NaN when every sample is 0.
-    n_total, n_skipped : int
-        Number of samples and of samples with F = 0.
+    Attributes:
+        mean_all (float): Mean over every sample.
+        mean_skip_zero (float): Mean over samples whose F-score is not 0 (the reference evaluation
+            skips samples with F@5 = 0); NaN when every sample is 0.
+        n_total, n_skipped (int): Number of samples and of samples with F = 0.
     """
 
     mean_all: float
@@ -261,16 +237,14 @@ def aggregate_fscore(
 ) -> FScoreSummary:
     """Aggregate F-scores at ``threshold_mm`` with and without skipping zero samples.
 
-    Parameters
-    ----------
-    results : iterable of ObjectMetrics or float
-        Per-sample results (or per-sample F-scores directly).
-    threshold_mm : float
-        Threshold whose F-score is aggregated (5 mm in the reference skipping rule).
+    Args:
+        results (iterable of ObjectMetrics or float): Per-sample results (or per-sample F-scores
+            directly).
+        threshold_mm (float): Threshold whose F-score is aggregated (5 mm in the reference skipping
+            rule).
 
-    Returns
-    -------
-    FScoreSummary
+    Returns:
+        FScoreSummary
     """
     vals = np.array(
         [r.f_at(threshold_mm) if isinstance(r, ObjectMetrics) else float(r) for r in results],

@@ -1,4 +1,4 @@
-"""Simulation displacement (S.D.): does the grasp hold the object? (METHOD.md section 3)
+"""Simulation displacement (S.D.): does the grasp hold the object? (docs/method.md section 3)
 
 The ObMan / GraspTTA / EasyHOI protocol in PyBullet: the hand is a static concave triangle mesh,
 the object a dynamic body of mass 1 kg made of the convex hulls of its V-HACD decomposition, with
@@ -36,7 +36,7 @@ _MEMORY_CACHE: dict[str, tuple[Path, int]] = {}
 
 @dataclass(frozen=True)
 class VHACDParams:
-    """V-HACD settings of the published protocol (METHOD.md).
+    """V-HACD settings of the published protocol (docs/method.md).
 
     PyBullet bundles V-HACD 2.2, which has no "maximum number of hulls" setting: it bounds the
     count by its clipping depth (each stage at most doubles the parts), so ``max_hulls`` is
@@ -63,19 +63,13 @@ class VHACDParams:
 class Decomposition:
     """A cached convex decomposition.
 
-    Attributes
-    ----------
-    path : Path
-        OBJ file, one ``o`` group per convex hull, in the object's frame translated so that its
-        vertex mean is the origin (metres).
-    n_hulls : int
-        Number of convex hulls.
-    centre : (3,) float
-        The object's vertex mean in its original frame (metres).
-    cache : str
-        Where it came from: "memory", "disk" or "computed".
-    seconds : float
-        Time spent obtaining it.
+    Attributes:
+        path (Path): OBJ file, one ``o`` group per convex hull, in the object's frame translated so
+            that its vertex mean is the origin (metres).
+        n_hulls (int): Number of convex hulls.
+        centre ((3,) float): The object's vertex mean in its original frame (metres).
+        cache (str): Where it came from: "memory", "disk" or "computed".
+        seconds (float): Time spent obtaining it.
     """
 
     path: Path
@@ -89,20 +83,14 @@ class Decomposition:
 class SimResult:
     """Outcome of one simulation.
 
-    Attributes
-    ----------
-    displacement : float
-        |final object position - initial centroid|, cm.
-    initial_position, final_position : (3,) float
-        Object centre of mass before and after, metres.
-    steps : int
-        Simulation steps run.
-    n_hulls : int
-        Convex hulls in the object's decomposition.
-    cache : str
-        "memory", "disk" or "computed" (the decomposition's origin).
-    decomposition_seconds, simulation_seconds : float
-        Wall-clock times.
+    Attributes:
+        displacement (float): |final object position - initial centroid|, cm.
+        initial_position, final_position ((3,) float): Object centre of mass before and after,
+            metres.
+        steps (int): Simulation steps run.
+        n_hulls (int): Convex hulls in the object's decomposition.
+        cache (str): "memory", "disk" or "computed" (the decomposition's origin).
+        decomposition_seconds, simulation_seconds (float): Wall-clock times.
     """
 
     displacement: float
@@ -166,18 +154,13 @@ def convex_decomposition(
 ) -> Decomposition:
     """V-HACD convex decomposition of an object, cached in memory and on disk.
 
-    Parameters
-    ----------
-    obj_mesh : trimesh.Trimesh or (vertices (V, 3), faces (F, 3))
-        Object mesh in metres.
-    params : VHACDParams, optional
-        Decomposition settings (default: the published ones).
-    cache_dir : path, optional
-        Disk cache folder (default: :func:`default_cache_dir`).
+    Args:
+        obj_mesh (trimesh.Trimesh or (vertices (V, 3), faces (F, 3))): Object mesh in metres.
+        params (VHACDParams, optional): Decomposition settings (default: the published ones).
+        cache_dir (path, optional): Disk cache folder (default: :func:`default_cache_dir`).
 
-    Returns
-    -------
-    Decomposition
+    Returns:
+        Decomposition
     """
     import pybullet as p
 
@@ -246,39 +229,27 @@ def simulation_displacement(
 ) -> SimResult:
     """Simulate the object under gravity with the hand fixed; report how far it moves.
 
-    Parameters
-    ----------
-    hand_mesh : trimesh.Trimesh or (vertices (V, 3), faces (F, 3))
-        Hand mesh in metres (static concave triangle mesh; need not be closed).
-    obj_mesh : trimesh.Trimesh or (vertices, faces)
-        Object mesh in metres, in the same frame as the hand.
-    steps : int
-        Simulation steps: 35 in the ObMan code (default), 1000 in the EasyHOI paper's text.
-    gravity : float
-        m/s^2.
-    gravity_dir : (3,) float
-        Direction of gravity; default +y (image down in the camera frame).
-    time_step : float
-        Seconds per step.
-    solver_iterations : int
-        Constraint solver iterations per step.
-    friction : float
-        Lateral friction of both bodies.
-    hand_restitution, obj_restitution : float
-        Restitution of the hand and of the object.
-    obj_mass : float
-        kg.
-    linear_damping : float, optional
-        Object linear damping; None keeps PyBullet's default (0.04), as the published code did.
-    vhacd : VHACDParams, optional
-        Decomposition settings.
-    cache_dir : path, optional
-        Disk cache folder of the decompositions.
+    Args:
+        hand_mesh (trimesh.Trimesh or (vertices (V, 3), faces (F, 3))): Hand mesh in metres (static
+            concave triangle mesh; need not be closed).
+        obj_mesh (trimesh.Trimesh or (vertices, faces)): Object mesh in metres, in the same frame as
+            the hand.
+        steps (int): Simulation steps: 35 in the ObMan code (default), 1000 in the EasyHOI paper's
+            text.
+        gravity (float): m/s^2.
+        gravity_dir ((3,) float): Direction of gravity; default +y (image down in the camera frame).
+        time_step (float): Seconds per step.
+        solver_iterations (int): Constraint solver iterations per step.
+        friction (float): Lateral friction of both bodies.
+        hand_restitution, obj_restitution (float): Restitution of the hand and of the object.
+        obj_mass (float): kg.
+        linear_damping (float, optional): Object linear damping; None keeps PyBullet's default
+            (0.04), as the published code did.
+        vhacd (VHACDParams, optional): Decomposition settings.
+        cache_dir (path, optional): Disk cache folder of the decompositions.
 
-    Returns
-    -------
-    SimResult
-        ``displacement`` in cm.
+    Returns:
+        SimResult: ``displacement`` in cm.
     """
     import pybullet as p
 
@@ -352,9 +323,8 @@ def gravity_cone(gravity_dir=(0.0, 1.0, 0.0), tilt_deg: float = 10.0, azimuths: 
     ``tilt_deg`` at evenly spaced azimuths (the first tilted towards the world axis least
     aligned with gravity). Deterministic.
 
-    Returns
-    -------
-    (1 + azimuths, 3) float array.
+    Returns:
+        (1 + azimuths, 3) float array.
     """
     g = to_numpy(gravity_dir, "gravity_dir")
     if g.shape != (3,) or not np.isfinite(g).all() or np.linalg.norm(g) == 0:

@@ -1,19 +1,7 @@
-"""Prior-guided optimization (METHOD.md section 2.2): loss terms and the three stages."""
+"""Prior-guided optimization (docs/method.md section 2.2): the three stages, their loss terms,
+state and loop.
 
-from easyhoi.optim.losses import (
-    contact_loss,
-    mask_mse,
-    penetration_loss,
-    pose_reg_loss,
-    sinkhorn_mask_loss,
-    soft_iou_loss,
-)
-
-__all__ = [
-    "contact_loss",
-    "mask_mse",
-    "penetration_loss",
-    "pose_reg_loss",
-    "sinkhorn_mask_loss",
-    "soft_iou_loss",
-]
+Entry point: :func:`easyhoi.optim.run.optimize`. Modules: ``state`` (per-run state), ``loop``
+(stage bookkeeping and the coarse-to-fine phase loop), ``placement`` (hand frames), ``losses``,
+``camera`` / ``contact`` (+ ``registration``) / ``refine`` (stages 1-3), ``run``.
+"""

@@ -44,18 +44,9 @@ import torch
 from easyhoi.config import CameraStageConfig, OptimConfig
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import StageResult
+from easyhoi.optim.loop import StageLoop, early_stop, restore, run_phases, snapshot
 from easyhoi.optim.losses import sinkhorn_mask_loss, soft_iou_loss
-from easyhoi.optim.scene import (
-    SILHOUETTE_SIGMA,
-    Patience,
-    Scene,
-    StageLoop,
-    early_stop,
-    hard_iou,
-    phase_sizes,
-    restore,
-    snapshot,
-)
+from easyhoi.optim.state import SILHOUETTE_SIGMA, Scene, hard_iou
 from easyhoi.render.soft import soft_silhouette
 from easyhoi.structures import Camera
 
@@ -268,46 +259,41 @@ def fit_camera(
     params = _CameraParams(cam0, scene.center, scene.extent, cfg.optimise_focal)
     loop = StageLoop("camera", cfg.max_iters, optim_cfg.history_every, progress)
     opt = torch.optim.Adam(params.tensors(), lr=cfg.lr)
-    it, stop_reason = 0, "max_iters"
-    sizes = phase_sizes(cfg.max_iters, len(cfg.resolution_schedule))
-    final_iou = None
-    for phase, (frac, n_iters) in enumerate(zip(cfg.resolution_schedule, sizes, strict=True)):
-        last_phase = phase == len(sizes) - 1
+
+    def begin(frac):
         h, w = scene.render_size(frac, optim_cfg.render_size)
-        target = scene.masks_at(h, w)["amodal"]
-        loop.reset_best()
-        patience = Patience(cfg.patience, cfg.min_delta)
-        phase_reason = "max_iters"
-        for _ in range(n_iters):
-            cam = params.camera().resized(w, h)
-            sil = soft_silhouette(scene.object_verts, scene.object_faces, cam, SILHOUETTE_SIGMA)
-            iou = soft_iou_loss(sil, target)
-            total = cfg.iou_weight * iou
-            iou_v = float(iou.detach())
-            terms = {"iou": iou_v}
-            if cfg.use_sinkhorn and cfg.sinkhorn_weight > 0 and iou_v > SINKHORN_GATE:
-                sk = sinkhorn_mask_loss(
-                    sil, target, cfg.sinkhorn_grid, cfg.sinkhorn_blur, cfg.sinkhorn_scaling
-                )
-                total = total + cfg.sinkhorn_weight * sk
-                terms["sinkhorn"] = float(sk.detach())
-            total_v = float(total.detach())
-            terms["total"] = total_v
-            loop.record(it, terms)
-            loop.offer(iou_v, params.state(), it)
-            reason = early_stop(iou_v, cfg.stop_loss, patience, total_v)
-            if reason:
-                phase_reason = reason
-                break
-            loop.step(opt, total)
-            it += 1
-        loop.restore_best(params.load)
-        if last_phase:
-            stop_reason = phase_reason
-            with torch.no_grad():
-                cam = params.camera().resized(w, h)
-                sil = soft_silhouette(scene.object_verts, scene.object_faces, cam, SILHOUETTE_SIGMA)
-                final_iou = hard_iou(sil, target)
+        return h, w, scene.masks_at(h, w)["amodal"]
+
+    def silhouette(phase):
+        h, w, _ = phase.context
+        cam = params.camera().resized(w, h)
+        return soft_silhouette(scene.object_verts, scene.object_faces, cam, SILHOUETTE_SIGMA)
+
+    def step(phase, it):
+        target = phase.context[2]
+        sil = silhouette(phase)
+        iou = soft_iou_loss(sil, target)
+        total = cfg.iou_weight * iou
+        iou_v = float(iou.detach())
+        terms = {"iou": iou_v}
+        if cfg.use_sinkhorn and cfg.sinkhorn_weight > 0 and iou_v > SINKHORN_GATE:
+            sk = sinkhorn_mask_loss(
+                sil, target, cfg.sinkhorn_grid, cfg.sinkhorn_blur, cfg.sinkhorn_scaling
+            )
+            total = total + cfg.sinkhorn_weight * sk
+            terms["sinkhorn"] = float(sk.detach())
+        total_v = float(total.detach())
+        terms["total"] = total_v
+        loop.record(it, terms)
+        loop.offer(iou_v, params.state(), it)
+        return total, early_stop(iou_v, cfg.stop_loss, phase.patience, total_v)
+
+    it, stop_reason, last = run_phases(
+        loop, cfg.resolution_schedule, cfg.max_iters, opt, (cfg.patience, cfg.min_delta),
+        begin, step, params.load,
+    )  # fmt: skip
+    with torch.no_grad():
+        final_iou = hard_iou(silhouette(last), last.context[2])
     with torch.no_grad():
         camera = params.camera().detach()
     extra = {

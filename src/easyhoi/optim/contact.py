@@ -59,40 +59,17 @@ import torch
 from easyhoi.config import ContactStageConfig, OptimConfig
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import HOIInput, StageResult
+from easyhoi.optim.loop import StageLoop, early_stop, run_phases
 from easyhoi.optim.losses import soft_iou_loss
-from easyhoi.optim.registration import (  # noqa: F401  (re-exported: moved from this module)
-    MIN_CONTACT_POINTS,
-    _hits,
-    _pick,
-    _pixel_uv,
-    contact_points,
-    register_contacts,
-)
-from easyhoi.optim.scene import (
-    Patience,
-    Scene,
-    StageLoop,
-    camera_hand_to_object,
-    early_stop,
-    hand_in_camera,
-    hard_iou,
-    move_hand,
-    phase_sizes,
-    rest_wrist,
-)
+from easyhoi.optim.placement import camera_hand_to_object, hand_in_camera, move_hand, rest_wrist
+from easyhoi.optim.registration import register_contacts
+from easyhoi.optim.state import Scene, hard_iou
 from easyhoi.render.raster import depth_map, rasterize
 from easyhoi.structures import Camera, HandParams
 
 logger = logging.getLogger(__name__)
 
-__all__ = [
-    "ContactState",
-    "contact_points",
-    "fit_contact",
-    "initial_hand",
-    "register_contacts",
-    "scan_scale",
-]
+__all__ = ["ContactState", "fit_contact", "initial_hand", "scan_scale"]
 
 #: Factors of the initial metric scale tried by :func:`scan_scale` (log-spaced, 1/2 to 2).
 SCALE_SCAN = tuple(float(x) for x in np.geomspace(0.5, 2.0, 41))
@@ -236,12 +213,13 @@ def initial_hand(
     inp: HOIInput,
     camera: Camera,
     render_size: int,
-    peel_layers: int = 4,
+    cfg: ContactStageConfig | None = None,
     sdf_resolution: int = 48,
-    tie_margin: float = 0.0,
-    band: float = 0.0,
 ) -> tuple[HandParams, float, dict]:
     """Place the estimator's hand in the object camera (see the module docstring).
+
+    ``cfg`` gives ``peel_layers``, ``scan_tie_margin`` and ``scan_band`` (default: the
+    defaults of :class:`~easyhoi.config.ContactStageConfig`).
 
     Returns
     -------
@@ -252,6 +230,7 @@ def initial_hand(
     note : dict
         JSON-ready description (overlap pixels used, depths).
     """
+    cfg = ContactStageConfig() if cfg is None else cfg
     model = scene.hand_model
     dt = scene.dtype
     p_hc = hand_in_camera(inp.hand_params.to(dtype=dt), inp.hand_camera.to(dt), model)
@@ -269,7 +248,7 @@ def initial_hand(
         verts = model(p_oc).vertices[0]
         zh = depth_map(verts, model.faces, cam_o0.resized(w, h))
         layers = rasterize(scene.object_verts, scene.object_faces, camera.detach().resized(w, h),
-                           num_layers=peel_layers).depth  # fmt: skip
+                           num_layers=cfg.peel_layers).depth  # fmt: skip
     zo_front = layers[..., 0]
     zo_back = torch.where(torch.isfinite(layers), layers, -torch.inf).max(dim=-1).values
     masks = scene.masks_at(h, w)
@@ -289,7 +268,7 @@ def initial_hand(
         how = "fallback_unit"
     m_overlap = m
     m, scan_score = scan_scale(
-        scene, verts, camera, m, sdf_resolution, render_size, tie_margin, band
+        scene, verts, camera, m, sdf_resolution, render_size, cfg.scan_tie_margin, cfg.scan_band
     )
     note = {
         "metric_scale_init": m,
@@ -328,65 +307,64 @@ def fit_contact(
     sdf_res = optim_cfg.refine.sdf_resolution
     due = [r for r in cfg.register_at if r < cfg.max_iters]
     registrations: list[dict] = []
-    it, stop_reason = 0, "max_iters"
-    sizes = phase_sizes(cfg.max_iters, len(cfg.resolution_schedule))
-    final_iou = None
-    for phase, (frac, n_iters) in enumerate(zip(cfg.resolution_schedule, sizes, strict=True)):
-        last_phase = phase == len(sizes) - 1
+
+    def begin(frac):
         h, w = scene.render_size(frac, optim_cfg.render_size)
-        masks = scene.masks_at(h, w)
-        cam = state.camera.resized(w, h)
-        patience = Patience(cfg.patience, cfg.min_delta)
-        phase_reason = "max_iters"
-        for _ in range(n_iters):
-            if due and it >= due[0]:
-                due.pop(0)
-                if not registrations:
-                    loop.reset_best()  # only aligned states (after the first) compete
-                with torch.no_grad():
-                    m_before = state.m
-                    state.m, _ = scan_scale(
-                        scene, state.verts_cam(), state.camera, state.m, sdf_res,
-                        optim_cfg.render_size, cfg.scan_tie_margin, cfg.scan_band,
-                    )  # fmt: skip
-                    v = state.verts_obj()
-                    _, vis, _ = scene.hand_silhouettes(v, cam)
-                    scan = float(soft_iou_loss(vis, masks["hand"])) + float(_rot_prior(state, cfg))
-                    loop.offer(scan + _touch(scene, v, sdf_res, 0.0), state.state(), it)
-                D, anchor, info = register_contacts(scene, v, cam, masks, cfg)
-                info["scan_scale_factor"] = state.m / m_before
-                info["iter"] = it
-                if D is not None:
-                    info.update(state.apply_translation(D, anchor, cfg.optimise_scale))
-                info["metric_scale"] = state.m
-                registrations.append(info)
-                patience.reset()
-            verts = state.verts_obj()
-            _, visible, _ = scene.hand_silhouettes(verts, cam)
-            iou = soft_iou_loss(visible, masks["hand"])
-            loss = iou
-            cdist = _touch(scene, verts.detach(), sdf_res, 0.0)
-            terms = {"iou": float(iou.detach()), "contact_dist": cdist}
-            if cfg.rotation_prior_weight > 0:
-                prior = _rot_prior(state, cfg)
-                loss = loss + prior
-                terms["rot_prior"] = float(prior.detach())
-            score = float(loss.detach()) + cdist
-            terms["total"] = score
-            loop.record(it, terms)
-            loop.offer(score, state.state(), it)
-            reason = None if due else early_stop(terms["iou"], cfg.stop_loss, patience, score)
-            if reason:
-                phase_reason = reason
-                break
-            loop.step(opt, loss)
-            it += 1
-        loop.restore_best(state.load)
-        if last_phase:
-            stop_reason = phase_reason
-            with torch.no_grad():
-                _, visible, _ = scene.hand_silhouettes(state.verts_obj(), cam)
-                final_iou = hard_iou(visible, masks["hand"])
+        return scene.masks_at(h, w), state.camera.resized(w, h)
+
+    def register(phase, it):
+        masks, cam = phase.context
+        if not registrations:
+            loop.reset_best()  # only aligned states (after the first) compete
+        with torch.no_grad():
+            m_before = state.m
+            state.m, _ = scan_scale(
+                scene, state.verts_cam(), state.camera, state.m, sdf_res,
+                optim_cfg.render_size, cfg.scan_tie_margin, cfg.scan_band,
+            )  # fmt: skip
+            v = state.verts_obj()
+            _, vis, _ = scene.hand_silhouettes(v, cam)
+            scan = float(soft_iou_loss(vis, masks["hand"])) + float(_rot_prior(state, cfg))
+            loop.offer(scan + _touch(scene, v, sdf_res, 0.0), state.state(), it)
+        D, anchor, info = register_contacts(scene, v, cam, masks, cfg)
+        info["scan_scale_factor"] = state.m / m_before
+        info["iter"] = it
+        if D is not None:
+            info.update(state.apply_translation(D, anchor, cfg.optimise_scale))
+        info["metric_scale"] = state.m
+        registrations.append(info)
+        phase.patience.reset()
+
+    def step(phase, it):
+        if due and it >= due[0]:
+            due.pop(0)
+            register(phase, it)
+        masks, cam = phase.context
+        verts = state.verts_obj()
+        _, visible, _ = scene.hand_silhouettes(verts, cam)
+        iou = soft_iou_loss(visible, masks["hand"])
+        loss = iou
+        cdist = _touch(scene, verts.detach(), sdf_res, 0.0)
+        terms = {"iou": float(iou.detach()), "contact_dist": cdist}
+        if cfg.rotation_prior_weight > 0:
+            prior = _rot_prior(state, cfg)
+            loss = loss + prior
+            terms["rot_prior"] = float(prior.detach())
+        score = float(loss.detach()) + cdist
+        terms["total"] = score
+        loop.record(it, terms)
+        loop.offer(score, state.state(), it)
+        reason = None if due else early_stop(terms["iou"], cfg.stop_loss, phase.patience, score)
+        return loss, reason
+
+    it, stop_reason, last = run_phases(
+        loop, cfg.resolution_schedule, cfg.max_iters, opt, (cfg.patience, cfg.min_delta),
+        begin, step, state.load, reset_best=False,
+    )  # fmt: skip
+    masks, cam = last.context
+    with torch.no_grad():
+        _, visible, _ = scene.hand_silhouettes(state.verts_obj(), cam)
+        final_iou = hard_iou(visible, masks["hand"])
     with torch.no_grad():
         cdist = _touch(scene, state.verts_obj(), sdf_res, 0.0)
     extra = {

@@ -1,4 +1,4 @@
-"""Loss terms of the three-stage optimizer (METHOD.md section 2.2), one pure function per term.
+"""Loss terms of the three-stage optimizer (docs/method.md section 2.2), one pure function per term.
 
 No weight, threshold or schedule lives here: every factor that scales a term or switches it on
 is a field of :mod:`easyhoi.config`. Each function takes tensors, returns a scalar tensor
@@ -43,7 +43,7 @@ IOU_EPS = 1e-6
 #: :func:`sinkhorn_mask_loss`, so that an empty prediction is a uniform distribution.
 MASS_EPS = 1e-6
 
-#: Contact-zone vertices of MANO (778 vertices; METHOD.md: "about 115"). The paper's weights
+#: Contact-zone vertices of MANO (778 vertices; docs/method.md: "about 115"). The paper's weights
 #: were tuned for a sum over this many vertices; :func:`contact_loss` rescales a sum over C
 #: vertices by ``MANO_CONTACT_VERTICES / C`` so that those weights mean the same for any hand
 #: mesh resolution (the built-in OpenHand has 1902 vertices and 285 contact vertices).
@@ -234,7 +234,7 @@ def penetration_loss(
     A vertex counts only when its signed distance is below ``threshold`` (the reference
     implementation uses -5e-3 in normalised object units, tolerating shallow contact); a
     counted vertex contributes its full depth ``-d(v)``. With ``threshold = 0`` this is exactly
-    METHOD.md's term. The gradient is ``-1/V`` for each counted vertex and 0 elsewhere.
+    the term of docs/method.md. The gradient is ``-1/V`` for each counted vertex and 0 elsewhere.
 
     Parameters
     ----------

@@ -1,6 +1,6 @@
 """Stage 3, hand parameter refinement: global pose and articulation with the combined loss.
 
-Variables (metric object frame, see :mod:`easyhoi.optim.scene`): ``global_orient`` (Adam,
+Variables (metric object frame, see :mod:`easyhoi.optim.state`): ``global_orient`` (Adam,
 ``lr_global``), the translation ``transl = transl_0 + (L m) delta`` with ``delta`` in normalised
 object units (``L`` the object's largest side in object units; Adam, ``lr_transl`` or
 ``lr_global``: a step of 1e-4 moves the hand by 0.01 % of the object's size, whatever the metric
@@ -36,16 +36,9 @@ import torch
 from easyhoi.config import OptimConfig, RefineStageConfig
 from easyhoi.hand.regions import DIGIT_JOINTS
 from easyhoi.hoi import StageResult
+from easyhoi.optim.loop import StageLoop, restore, run_phases, snapshot
 from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
-from easyhoi.optim.scene import (
-    Patience,
-    Scene,
-    StageLoop,
-    hard_iou,
-    phase_sizes,
-    restore,
-    snapshot,
-)
+from easyhoi.optim.state import Scene, hard_iou
 from easyhoi.structures import Camera, HandParams
 
 __all__ = ["refine_terms", "fit_refine"]
@@ -160,39 +153,34 @@ def fit_refine(
     opt = torch.optim.Adam(groups) if groups else None
     loop = StageLoop("refine", cfg.max_iters, optim_cfg.history_every, progress)
     current = lambda: p0.__class__(go, tr0 + unit * delta, pose, p0.betas, p0.side)  # noqa: E731
-    it, stop_reason = 0, "max_iters"
     camera = camera.detach().to(dt)
-    sizes = phase_sizes(cfg.max_iters, len(cfg.resolution_schedule)) if opt else [0]
-    final_iou = None
-    for phase, (frac, n_iters) in enumerate(zip(cfg.resolution_schedule, sizes, strict=False)):
-        last_phase = phase == len(sizes) - 1
+
+    def begin(frac):
         h, w = scene.render_size(frac, optim_cfg.render_size)
-        masks = scene.masks_at(h, w)
-        cam = camera.resized(w, h)
-        loop.reset_best()
-        patience = Patience(cfg.patience, cfg.min_delta)
-        phase_reason = "max_iters" if opt else "nothing_to_optimise"
-        for _ in range(n_iters):
-            terms = refine_terms(scene, current(), metric_scale, theta0, cfg, cam, masks)
-            total = terms["total"]
-            plain = {k: float(v.detach()) for k, v in terms.items()}
-            loop.record(it, plain)
-            loop.offer(plain["total"], snapshot(variables), it)
-            if patience.exhausted(plain["total"]):
-                phase_reason = "patience"
-                break
-            if not total.requires_grad:
-                phase_reason = "no_active_term"
-                break
-            loop.step(opt, total)
-            it += 1
-        loop.restore_best(lambda state: restore(variables, state))
-        if last_phase:
-            stop_reason = phase_reason
-            with torch.no_grad():
-                verts = scene.hand_model(current()).vertices[0] / metric_scale
-                _, visible, _ = scene.hand_silhouettes(verts, cam)
-                final_iou = hard_iou(visible, masks["hand"])
+        return scene.masks_at(h, w), camera.resized(w, h)
+
+    def step(phase, it):
+        masks, cam = phase.context
+        terms = refine_terms(scene, current(), metric_scale, theta0, cfg, cam, masks)
+        total = terms["total"]
+        plain = {k: float(v.detach()) for k, v in terms.items()}
+        loop.record(it, plain)
+        loop.offer(plain["total"], snapshot(variables), it)
+        if phase.patience.exhausted(plain["total"]):
+            return total, "patience"
+        if not total.requires_grad:
+            return total, "no_active_term"
+        return total, None
+
+    it, stop_reason, last = run_phases(
+        loop, cfg.resolution_schedule, cfg.max_iters, opt, (cfg.patience, cfg.min_delta),
+        begin, step, lambda state: restore(variables, state),
+    )  # fmt: skip
+    masks, cam = last.context
+    with torch.no_grad():
+        verts = scene.hand_model(current()).vertices[0] / metric_scale
+        _, visible, _ = scene.hand_silhouettes(verts, cam)
+        final_iou = hard_iou(visible, masks["hand"])
     params = current().detach().clone()
     with torch.no_grad():
         final = refine_terms(scene, params, metric_scale, theta0, cfg, cam, masks)

@@ -15,7 +15,7 @@ import torch
 
 from easyhoi.config import ContactStageConfig
 from easyhoi.geometry.icp import icp
-from easyhoi.optim.scene import Scene
+from easyhoi.optim.state import Scene
 from easyhoi.render.raster import depth_map, peel_pixels
 from easyhoi.structures import Camera
 
@@ -114,15 +114,8 @@ def register_contacts(
     masks: dict,
     cfg: ContactStageConfig,
 ) -> tuple[np.ndarray | None, np.ndarray | None, dict]:
-    """Contact registration at one resolution: :func:`contact_points`, then translation ICP.
-
-    Parameters
-    ----------
-    scene : Scene
-    hand_verts : (V, 3) hand vertices in the object frame (object units).
-    camera : Camera at the render resolution.
-    masks : dict from :meth:`Scene.masks_at` at that resolution.
-    cfg : ContactStageConfig
+    """Contact registration at one resolution: :func:`contact_points` (same parameters), then
+    translation ICP.
 
     Returns
     -------

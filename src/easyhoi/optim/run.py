@@ -1,4 +1,4 @@
-"""The three-stage prior-guided optimizer (METHOD.md section 2.2): public entry point.
+"""The three-stage prior-guided optimizer (docs/method.md section 2.2): public entry point.
 
 :func:`optimize` turns an :class:`~easyhoi.hoi.HOIInput` into an :class:`~easyhoi.hoi.HOIResult`:
 
@@ -8,7 +8,7 @@
    (``config.run_camera`` / ``run_contact`` / ``run_refine``); a disabled stage keeps the state.
    With no stage enabled the result is the initial state (for ablations).
 
-Conventions (see :mod:`easyhoi.optim.scene` and :mod:`easyhoi.hoi`): the global frame is the
+Conventions (see :mod:`easyhoi.optim.state` and :mod:`easyhoi.hoi`): the global frame is the
 object's canonical frame in object units; ``metric_scale`` ``m`` is metres per object unit,
 recovered from the hand's known (metric) size: the hand is placed at the depth where it meets
 the object, so ``m`` is the ratio between the hand's metric depth and the object-unit depth
@@ -37,8 +37,9 @@ from easyhoi.errors import EasyHOIError, InvalidInputError, OptimizationError
 from easyhoi.hoi import HOIInput, HOIResult, StageResult
 from easyhoi.optim.camera import fit_camera, initial_camera
 from easyhoi.optim.contact import ContactState, fit_contact, initial_hand
+from easyhoi.optim.placement import camera_hand_to_object
 from easyhoi.optim.refine import fit_refine
-from easyhoi.optim.scene import Scene, camera_hand_to_object, hard_iou
+from easyhoi.optim.state import Scene, hard_iou
 from easyhoi.render.raster import depth_map
 
 logger = logging.getLogger(__name__)
@@ -114,7 +115,9 @@ def optimize(
         Optimizer settings (default: the default preset's, ``get_preset().optim``); an
         :class:`~easyhoi.config.EasyHOIConfig` is accepted and its ``optim`` used.
     hand_model : HandModel or None
-        The model ``inp.hand_params`` belong to (default: ``load_hand_model(inp.hand_model)``).
+        The run's hand model (:attr:`easyhoi.settings.RunSettings.hand_model`), the one
+        ``inp.hand_params`` belong to. None only for the built-in open hand
+        (:func:`easyhoi.hand.builtin_hand_model`); a MANO model must be passed in.
     progress : callable or None
         ``progress(stage_name, iteration, max_iters, {loss terms})``, called every
         ``config.history_every`` iterations of every stage.
@@ -142,9 +145,9 @@ def optimize(
         raise InvalidInputError(f"inp must be an HOIInput, got {type(inp).__name__}")
     dtype = config.torch_dtype
     if hand_model is None:
-        from easyhoi.hand import load_hand_model
+        from easyhoi.hand import builtin_hand_model
 
-        hand_model = load_hand_model(inp.hand_model, dtype=dtype)
+        hand_model = builtin_hand_model(inp.hand_model, dtype)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     with torch.random.fork_rng(devices=[]):
@@ -177,16 +180,18 @@ def optimize(
     )
 
 
+def _place_hand(inp: HOIInput, scene: Scene, config: OptimConfig, cam):
+    """The estimator's hand in the object camera ``cam`` (:func:`initial_hand`): its camera-frame
+    parameters, metric scale, note, and its parameters in the metric object frame."""
+    p_cam, m, note = initial_hand(scene, inp, cam, config.render_size, config.contact)
+    return p_cam, m, note, camera_hand_to_object(p_cam, cam, m, scene.hand_model)
+
+
 def _run_stages(inp: HOIInput, scene: Scene, config: OptimConfig, progress, timings: dict):
     stages: list[StageResult] = []
     t = time.perf_counter()
     cam, note = initial_camera(scene, config.camera, inp.amodal_mask, config.render_size)
-    p_cam, m, hand_note = initial_hand(
-        scene, inp, cam, config.render_size, config.contact.peel_layers,
-        tie_margin=config.contact.scan_tie_margin,
-        band=config.contact.scan_band,
-    )  # fmt: skip
-    params = camera_hand_to_object(p_cam, cam, m, scene.hand_model)
+    p_cam, m, hand_note, params = _place_hand(inp, scene, config, cam)
     stages.append(
         StageResult(
             name="initial",
@@ -206,12 +211,7 @@ def _run_stages(inp: HOIInput, scene: Scene, config: OptimConfig, progress, timi
         except InvalidInputError as exc:  # e.g. NaN vertices reaching the renderer
             raise _stage_error("camera", exc) from exc
         # the hand placement follows the new camera (same pixels, new focal)
-        p_cam, m, hand_note = initial_hand(
-            scene, inp, cam, config.render_size, config.contact.peel_layers,
-            tie_margin=config.contact.scan_tie_margin,
-            band=config.contact.scan_band,
-        )  # fmt: skip
-        params = camera_hand_to_object(p_cam, cam, m, scene.hand_model)
+        p_cam, m, hand_note, params = _place_hand(inp, scene, config, cam)
         stages.append(replace(res, hand_params=params, metric_scale=m,
                               extra={**res.extra, "hand": hand_note}))  # fmt: skip
         timings["camera"] = res.seconds

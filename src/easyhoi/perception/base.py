@@ -156,12 +156,17 @@ def available(role: str) -> list[str]:
     return sorted(_REGISTRY[role])
 
 
-def create(role: str, name: str, **kwargs):
-    """Instantiate the backend ``name`` for ``role``."""
+def factory(role: str, name: str) -> Callable[..., Any]:
+    """The registered factory (usually the class) of backend ``name`` for ``role``."""
     names = available(role)
     if name not in _REGISTRY[role]:
         raise InvalidInputError(f"unknown {role} backend {name!r}; available: {', '.join(names)}")
-    return _REGISTRY[role][name](**kwargs)
+    return _REGISTRY[role][name]
+
+
+def create(role: str, name: str, **kwargs):
+    """Instantiate the backend ``name`` for ``role``."""
+    return factory(role, name)(**kwargs)
 
 
 #: Backend modules imported on first registry use (each imports its heavy dependency lazily).

@@ -22,9 +22,9 @@ import numpy as np
 
 from easyhoi.config import EasyHOIConfig
 from easyhoi.errors import InvalidInputError, NoHandError, NoObjectError
-from easyhoi.hand import load_hand_model
 from easyhoi.hoi import HOIInput
 from easyhoi.perception.base import HandDetection, Segmentation, create
+from easyhoi.settings import RunSettings, resolve_run
 
 logger = logging.getLogger(__name__)
 
@@ -76,14 +76,24 @@ class Provided:
 
 def perceive(
     image: np.ndarray,
-    config: EasyHOIConfig | None = None,
+    settings: RunSettings | EasyHOIConfig | None = None,
     progress: Callable[[str], None] | None = None,
-    seed: int = 0,
+    seed: int | None = None,
     provided: Provided | None = None,
 ) -> tuple[HOIInput, PerceptionReport]:
     """Run the perception chain on an (H, W, 3) uint8 RGB photo.
 
-    Steps whose results are in ``provided`` are skipped (their inputs are not needed).
+    Steps whose results are in ``provided`` are skipped (their inputs are not needed). The hand
+    is fitted with ``settings.hand_model``; the run's seed seeds the amodal prompts and every
+    backend that takes a seed (:func:`backend_seed`).
+
+    Args:
+        image: The photo.
+        settings: The run's :class:`~easyhoi.settings.RunSettings`, or a configuration to
+            resolve them from (None: the default preset).
+        progress: Called with each step's name as it starts.
+        seed: Replaces the run's seed when given.
+        provided: Results of other tools that replace steps.
 
     Raises:
         NoHandError: no hand in the photo.
@@ -93,7 +103,11 @@ def perceive(
     from easyhoi.perception.amodal import amodal_prompts
     from easyhoi.perception.hand_fit import fit_detection
 
-    cfg = config or EasyHOIConfig()
+    if isinstance(settings, RunSettings):
+        run = settings if seed is None else settings.with_seed(seed)
+    else:
+        run = resolve_run(settings, seed=seed)
+    cfg, seed = run.config, run.seed
     pc = cfg.perception
     report = PerceptionReport()
     say = progress or (lambda _msg: None)
@@ -118,11 +132,11 @@ def perceive(
         side = pv.hand[0].side
         hands = [HandDetection(np.zeros((0, 2)), None, side, 1.0, meta={"source": "provided"})]
     else:
-        hands = timed("hand detection", _backend(pc, "hand", pc.hand).detect, image)
+        hands = timed("hand detection", _backend(pc, "hand", pc.hand, seed).detect, image)
     report.hands_found = len(hands)
     if not hands:
         raise NoHandError("no hand found in the photo")
-    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter)
+    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter, seed)
     chosen = seg = None
     for i, hand in enumerate(hands):
         if masks_given:
@@ -141,7 +155,7 @@ def perceive(
         raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
     report.side, report.has_object = chosen.side, True
 
-    model = load_hand_model(cfg.hand_model, cfg.mano_dir)
+    model = run.hand_model
     if pv.hand is not None:
         params, camera = pv.hand
         chosen = replace(chosen, side=params.side, params=params, camera=camera)
@@ -150,7 +164,7 @@ def perceive(
     else:
         chosen = timed("hand fit", fit_detection, chosen, model, W, H)
 
-    inpainter = _backend(pc, "inpainter", pc.inpainter)
+    inpainter = _backend(pc, "inpainter", pc.inpainter, seed)
     inpainted = timed("inpainting", inpainter.inpaint, image, seg.hand_mask)
     points, box = amodal_prompts(seg.object_mask, seed=seed)
     if pv.amodal_mask is not None:
@@ -158,7 +172,7 @@ def perceive(
     else:
         amodal = timed(
             "amodal segmentation",
-            _backend(pc, "amodal", pc.amodal).segment,
+            _backend(pc, "amodal", pc.amodal, seed).segment,
             inpainted,
             points,
             box,
@@ -171,7 +185,7 @@ def perceive(
     else:
         from easyhoi.perception.objects import hand_inputs
 
-        reconstructor = _backend(pc, "object", pc.object)
+        reconstructor = _backend(pc, "object", pc.object, seed)
         hand_kw = hand_inputs(reconstructor, chosen, model, seg.hand_mask, seg.object_mask)
         mesh = timed("object mesh", reconstructor.reconstruct, inpainted, amodal, **hand_kw)
     if not mesh.is_watertight:
@@ -202,11 +216,32 @@ def perceive(
 _MODEL_DIR_FIELDS = {"sam": "sam_dir", "depth": "depth_dir", "diffusion": "diffusion_dir"}
 
 
-def _backend(pc, role: str, name: str):
-    """Create a backend; adapters of large models get their local model folder from config."""
+def backend_seed(seed: int) -> int:
+    """The seed handed to perception backends: the run's seed modulo 2**31.
+
+    OpenCV's random generator (GrabCut's initial clustering) takes a C int, so the run's seed
+    (up to 2**32 - 1) is folded into [0, 2**31).
+    """
+    return int(seed) % 2**31
+
+
+def _backend(pc, role: str, name: str, seed: int):
+    """Create a backend: one that takes a ``seed`` gets :func:`backend_seed`, adapters of large
+    models get their local model folder from config."""
+    import inspect
+
+    from easyhoi.perception.base import factory
+
+    kwargs = {}
+    try:
+        params = inspect.signature(factory(role, name)).parameters
+    except (TypeError, ValueError):  # pragma: no cover - a factory without a signature
+        params = {}
+    if "seed" in params:
+        kwargs["seed"] = backend_seed(seed)
     field_name = _MODEL_DIR_FIELDS.get(name)
     if field_name is None:
-        return create(role, name)
+        return create(role, name, **kwargs)
     model_dir = getattr(pc, field_name)
     if not model_dir:
         flag = "--" + field_name.replace("_", "-")
@@ -214,7 +249,7 @@ def _backend(pc, role: str, name: str):
             f"the {role} backend {name!r} needs a local model folder: pass {flag} DIR "
             f"(perception.{field_name}); nothing is downloaded"
         )
-    return create(role, name, model_dir=model_dir)
+    return create(role, name, model_dir=model_dir, **kwargs)
 
 
 def _jsonable(v) -> bool:

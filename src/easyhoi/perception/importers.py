@@ -87,12 +87,11 @@ def _read_file(path: Path) -> dict:
         except (OSError, json.JSONDecodeError) as exc:
             raise InvalidInputError(f"cannot read {path} as JSON: {exc}") from None
     if suffix in (".pkl", ".pickle"):
-        from easyhoi.hand.safe_pickle import RestrictedUnpickler, to_plain
+        from easyhoi.hand.safe_pickle import load_restricted, to_plain
 
         try:
-            with path.open("rb") as fh:
-                data = to_plain(RestrictedUnpickler(fh).load())
-        except UnsafeFileError:
+            data = to_plain(load_restricted(path, "hand-parameter pickle"))
+        except (UnsafeFileError, InvalidInputError):
             raise
         except Exception as exc:  # noqa: BLE001 - any decoding failure means a corrupt file
             raise InvalidInputError(f"{path} is not a readable pickle ({exc})") from None
@@ -312,6 +311,14 @@ def load_mask_png(path: str | Path, size: tuple[int, int] | None = None) -> np.n
     return load_mask(path, size=size)
 
 
+#: Largest object mesh accepted (faces). Image-to-3D tools write 10^4-10^5 faces; the SDF grid,
+#: ray casting and simulation cost grow with the face count, and a scanner's multi-million-face
+#: mesh would run for minutes: decimate it first (any mesh tool's quadric decimation).
+MAX_OBJECT_FACES = 500_000
+#: Largest object mesh file (bytes), checked before parsing.
+MAX_OBJECT_FILE_BYTES = 256 * 1024 * 1024
+
+
 def load_object_mesh(path: str | Path) -> trimesh.Trimesh:
     """Object mesh written by InstantMesh, Tripo3D or any tool (OBJ, GLB/GLTF, PLY, STL, OFF).
 
@@ -326,7 +333,18 @@ def load_object_mesh(path: str | Path) -> trimesh.Trimesh:
     """
     from easyhoi.geometry.mesh import load_mesh
 
+    p = Path(path)
+    if p.is_file() and p.stat().st_size > MAX_OBJECT_FILE_BYTES:
+        raise InvalidInputError(
+            f"object mesh {p} is {p.stat().st_size / 2**20:.0f} MiB; files over "
+            f"{MAX_OBJECT_FILE_BYTES // 2**20} MiB are refused (decimate the mesh first)"
+        )
     mesh = load_mesh(path)
+    if len(mesh.faces) > MAX_OBJECT_FACES:
+        raise InvalidInputError(
+            f"object mesh {p} has {len(mesh.faces):,} faces; at most {MAX_OBJECT_FACES:,} are "
+            "accepted (decimate the mesh first, e.g. quadric decimation to 50,000 faces)"
+        )
     mesh.metadata["easyhoi"] = {
         "source": str(path),
         "watertight": bool(mesh.is_watertight),

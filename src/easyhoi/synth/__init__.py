@@ -2,7 +2,7 @@
 
 * :mod:`~easyhoi.synth.objects`: procedural and scanned watertight objects (metres).
 * :mod:`~easyhoi.synth.grasp`: grasp synthesis by optimization with the hand model.
-* :mod:`~easyhoi.synth.scene`: camera, GT masks / depth / keypoints, :class:`Scene`.
+* :mod:`~easyhoi.synth.scene`: camera, GT masks / depth / keypoints, :class:`SynthScene`.
 * :mod:`~easyhoi.synth.photo`: shaded RGB photos.
 * :mod:`~easyhoi.synth.perturb`: error models of the large models and :class:`HOIInput` building.
 """
@@ -10,7 +10,7 @@
 from easyhoi.synth.grasp import GRASP_TYPES, Grasp, synthesize_grasp
 from easyhoi.synth.objects import OBJECT_KINDS, SynthObject, list_objects, make_object
 from easyhoi.synth.perturb import PERTURBATION_LEVELS, Perturbation, get_perturbation
-from easyhoi.synth.scene import Scene, make_scene
+from easyhoi.synth.scene import SynthScene, make_scene
 
 __all__ = [
     "GRASP_TYPES",
@@ -18,7 +18,7 @@ __all__ = [
     "PERTURBATION_LEVELS",
     "Grasp",
     "Perturbation",
-    "Scene",
+    "SynthScene",
     "SynthObject",
     "get_perturbation",
     "list_objects",

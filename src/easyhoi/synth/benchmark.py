@@ -40,13 +40,10 @@ import torch
 
 from easyhoi.config import OptimConfig, get_preset, with_overrides
 from easyhoi.errors import InvalidInputError
-from easyhoi.synth.evaluate import (  # noqa: F401  (re-exported: moved from this module)
+from easyhoi.synth.evaluate import (
     _estimator_hand,
-    _hand_out,
-    _mask_ious,
     _object_quality,
     _stage_metrics,
-    _Truth,
     _truth,
     evaluate_hand,
     gt_hand_state,
@@ -58,15 +55,7 @@ from easyhoi.synth.perturb import get_perturbation
 
 logger = logging.getLogger(__name__)
 
-__all__ = [
-    "LOSS_ABLATIONS",
-    "BenchmarkSettings",
-    "evaluate_hand",
-    "refine_from_contact",
-    "run_benchmark",
-    "scene_specs",
-    "strip_timings",
-]
+__all__ = ["LOSS_ABLATIONS", "BenchmarkSettings", "run_benchmark", "scene_specs", "strip_timings"]
 
 #: Loss ablation variants: name -> the refine weight set to 0 (None: the full loss).
 LOSS_ABLATIONS: dict[str, str | None] = {
@@ -148,7 +137,7 @@ def evaluate_scene(
     """Every measurement of one scene (see the module docstring); ``timings`` holds seconds."""
     from easyhoi.hand import load_hand_model
     from easyhoi.optim.run import optimize
-    from easyhoi.optim.scene import Scene as OptScene
+    from easyhoi.optim.state import Scene as OptScene
     from easyhoi.synth.scene import make_scene
 
     seed, kind, grasp = spec

@@ -41,13 +41,13 @@ class _Truth:
     verts: np.ndarray  # (V, 3) world, metres
     joints_cam: np.ndarray  # (21, 3) GT camera frame, metres
     verts_cam: np.ndarray  # (V, 3) GT camera frame, metres
-    opt_scene: object  # easyhoi.optim.scene.Scene with the GT masks
+    opt_scene: object  # easyhoi.optim.state.Scene with the GT masks
     render_size: int
     sdf_resolution: int
 
 
 def _truth(scene, inp, cfg: OptimConfig) -> _Truth:
-    from easyhoi.optim.scene import Scene as OptScene
+    from easyhoi.optim.state import Scene as OptScene
 
     gt = inp.meta["gt"]
     M = np.asarray(gt["canonical_from_world"], float)
@@ -87,7 +87,7 @@ def _hand_out(model, params: HandParams):
 
 def _mask_ious(truth: _Truth, v_obj: torch.Tensor, camera) -> tuple[float, float]:
     """Hard-render IoUs (visible hand vs GT M_h, object vs GT amodal) at ``render_size``."""
-    from easyhoi.optim.scene import hard_iou
+    from easyhoi.optim.state import hard_iou
     from easyhoi.render.raster import depth_map
 
     sc = truth.opt_scene
@@ -209,7 +209,7 @@ def refine_from_contact(inp, result, cfg: OptimConfig, opt_scene=None):
     Returns the refined :class:`HandParams` (metric object frame; metric scale unchanged).
     """
     from easyhoi.optim.refine import fit_refine
-    from easyhoi.optim.scene import Scene as OptScene
+    from easyhoi.optim.state import Scene as OptScene
 
     contact = next(s for s in result.stages if s.name == "contact")
     if opt_scene is None:

@@ -86,26 +86,18 @@ _DIGITS = tuple(DIGIT_JOINTS)  # thumb, index, middle, ring, pinky
 class Grasp:
     """A synthesized grasp.
 
-    Attributes
-    ----------
-    params : HandParams
-        Hand (batch 1) in the object's world frame, metres.
-    vertices : (V, 3) float64
-        Posed hand vertices (world, metres).
-    faces : (F, 3) int64
-        Closed hand mesh.
-    grasp_type : str
-        One of :data:`GRASP_TYPES`.
-    penetration_cm : float
-        Deepest hand vertex inside the object (exact), cm.
-    contact_count : int
-        Hand vertices with signed distance <= ``contact_threshold`` (inside counts).
-    contact_digits : tuple of str
-        Digits ("thumb", ..., "pinky", "palm") with a vertex within the threshold.
-    stability_cm : float or None
-        Simulation displacement (cm) when requested.
-    seconds : float
-        Wall time of the synthesis (stability check excluded).
+    Attributes:
+        params (HandParams): Hand (batch 1) in the object's world frame, metres.
+        vertices ((V, 3) float64): Posed hand vertices (world, metres).
+        faces ((F, 3) int64): Closed hand mesh.
+        grasp_type (str): One of :data:`GRASP_TYPES`.
+        penetration_cm (float): Deepest hand vertex inside the object (exact), cm.
+        contact_count (int): Hand vertices with signed distance <= ``contact_threshold`` (inside
+            counts).
+        contact_digits (tuple of str): Digits ("thumb", ..., "pinky", "palm") with a vertex within
+            the threshold.
+        stability_cm (float or None): Simulation displacement (cm) when requested.
+        seconds (float): Wall time of the synthesis (stability check excluded).
     """
 
     params: HandParams
@@ -259,37 +251,25 @@ def synthesize_grasp(
 ) -> Grasp:
     """Synthesize a grasp of ``mesh`` (watertight, metres) by the hand ``model``.
 
-    Parameters
-    ----------
-    model : HandModel
-        Right-hand MANO-layout model (``load_hand_model("open")``).
-    mesh : trimesh.Trimesh
-        Watertight object in metres (world frame).
-    grasp_type : {"power", "precision", "lateral"}
-    seed : int
-        Seeds the approach (surface point, roll, ends).
-    betas : (10,) tensor, optional
-        Hand shape (zeros by default).
-    info : optional
-        Precomputed :func:`analyse_object` of ``mesh`` (reuse across grasps).
-    iterations : int
-        Adam refinement iterations (0 disables the refinement).
-    contact_threshold : float
-        Metres; vertices within it count as contacts.
-    check_stability : bool
-        Also run :func:`easyhoi.metrics.simulation_displacement` (35 steps) with gravity along
-        the palm normal (palm facing down: the fingers alone must hold the object). Slow on
-        curved objects (V-HACD decomposition).
-    w_pen, w_att, w_reg : float
-        Refinement loss weights.
-    attempts : int
-        Approaches tried at most: a grasp is accepted at once when no vertex is more than
-        2 mm inside and the grasp type's required digits touch; otherwise the best of the
-        attempts (penetration in mm + 3 per missing digit) is returned.
+    Args:
+        model (HandModel): Right-hand MANO-layout model (``load_hand_model("open")``).
+        mesh (trimesh.Trimesh): Watertight object in metres (world frame).
+        grasp_type: {"power", "precision", "lateral"}
+        seed (int): Seeds the approach (surface point, roll, ends).
+        betas ((10,) tensor, optional): Hand shape (zeros by default).
+        info (optional): Precomputed :func:`analyse_object` of ``mesh`` (reuse across grasps).
+        iterations (int): Adam refinement iterations (0 disables the refinement).
+        contact_threshold (float): Metres; vertices within it count as contacts.
+        check_stability (bool): Also run :func:`easyhoi.metrics.simulation_displacement` (35 steps)
+            with gravity along the palm normal (palm facing down: the fingers alone must hold the
+            object). Slow on curved objects (V-HACD decomposition).
+        w_pen, w_att, w_reg (float): Refinement loss weights.
+        attempts (int): Approaches tried at most: a grasp is accepted at once when no vertex is more
+            than 2 mm inside and the grasp type's required digits touch; otherwise the best of the
+            attempts (penetration in mm + 3 per missing digit) is returned.
 
-    Returns
-    -------
-    Grasp
+    Returns:
+        Grasp
     """
     if grasp_type not in GRASP_TYPES:
         raise InvalidInputError(f"grasp_type must be one of {GRASP_TYPES}, got {grasp_type!r}")

@@ -59,20 +59,14 @@ OBJECT_PALETTE = (
 class SynthObject:
     """A graspable object.
 
-    Attributes
-    ----------
-    mesh : trimesh.Trimesh
-        Watertight, outward-oriented, metres, centred on its bounding-box centre.
-    color : (3,) tuple of float
-        Base RGB colour in [0, 1].
-    secondary : (3,) tuple of float
-        Second colour of the procedural texture.
-    texture : str
-        One of :data:`TEXTURES`.
-    kind : str
-        A procedural kind or ``"scan"``.
-    name : str
-        Human-readable name (the file stem for scans).
+    Attributes:
+        mesh (trimesh.Trimesh): Watertight, outward-oriented, metres, centred on its bounding-box
+            centre.
+        color ((3,) tuple of float): Base RGB colour in [0, 1].
+        secondary ((3,) tuple of float): Second colour of the procedural texture.
+        texture (str): One of :data:`TEXTURES`.
+        kind (str): A procedural kind or ``"scan"``.
+        name (str): Human-readable name (the file stem for scans).
     """
 
     mesh: trimesh.Trimesh
@@ -122,21 +116,14 @@ def _smooth_union(a: np.ndarray, b: np.ndarray, k: float) -> np.ndarray:
 def mesh_from_sdf(sdf, lo, hi, voxel: float, max_faces: int = MAX_FACES) -> trimesh.Trimesh:
     """Marching cubes of an implicit surface, decimated to ``max_faces``.
 
-    Parameters
-    ----------
-    sdf : callable
-        (N, 3) points -> (N,) signed distances (negative inside).
-    lo, hi : (3,) float
-        Box that strictly contains the surface.
-    voxel : float
-        Grid spacing.
-    max_faces : int
-        Face budget.
+    Args:
+        sdf (callable): (N, 3) points -> (N,) signed distances (negative inside).
+        lo, hi ((3,) float): Box that strictly contains the surface.
+        voxel (float): Grid spacing.
+        max_faces (int): Face budget.
 
-    Returns
-    -------
-    trimesh.Trimesh
-        Watertight, outward-oriented.
+    Returns:
+        trimesh.Trimesh: Watertight, outward-oriented.
     """
     from skimage.measure import marching_cubes
 
@@ -313,10 +300,8 @@ def _scanned(path: str, max_faces: int) -> trimesh.Trimesh:
 def list_objects(folder: str | Path) -> list[Path]:
     """Sorted mesh files (OBJ, PLY, GLB, STL, OFF) of a folder.
 
-    Raises
-    ------
-    InvalidInputError
-        The folder does not exist or holds no mesh file.
+    Raises:
+        InvalidInputError: The folder does not exist or holds no mesh file.
     """
     from easyhoi.geometry.mesh import MESH_SUFFIXES
 
@@ -338,24 +323,17 @@ def _appearance(rng: np.random.Generator) -> tuple[tuple, tuple, str]:
 def make_object(kind: str | Path, seed: int = 0, max_faces: int = MAX_FACES) -> SynthObject:
     """Create a graspable object.
 
-    Parameters
-    ----------
-    kind : str or Path
-        One of :data:`OBJECT_KINDS`, or the path of a mesh file (scanned object, metres).
-    seed : int
-        Seeds the size and appearance (procedural) or the appearance (scans).
-    max_faces : int
-        Face budget for scanned meshes (procedural ones use :data:`MAX_FACES`).
+    Args:
+        kind (str or Path): One of :data:`OBJECT_KINDS`, or the path of a mesh file (scanned object,
+            metres).
+        seed (int): Seeds the size and appearance (procedural) or the appearance (scans).
+        max_faces (int): Face budget for scanned meshes (procedural ones use :data:`MAX_FACES`).
 
-    Returns
-    -------
-    SynthObject
-        Its mesh is a fresh copy (callers may modify it).
+    Returns:
+        SynthObject: Its mesh is a fresh copy (callers may modify it).
 
-    Raises
-    ------
-    InvalidInputError
-        Unknown kind or unreadable file.
+    Raises:
+        InvalidInputError: Unknown kind or unreadable file.
     """
     rng = np.random.default_rng([seed, 7919])
     if isinstance(kind, str) and kind in OBJECT_KINDS:

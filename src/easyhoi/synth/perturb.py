@@ -67,18 +67,14 @@ class HandNoise:
 class ObjectNoise:
     """Object reconstruction error.
 
-    Attributes
-    ----------
-    rotate : bool
-        Random (uniform) rotation of the canonical frame.
-    scale_range : (2,) float
-        The canonical mesh's max extent is drawn log-uniformly in this range.
-    shape : {"oracle", "smooth", "coarse"}
-    amplitude : float
-        RMS normal displacement of ``"smooth"`` as a fraction of the max extent.
-    coarse : {"hull", "decimate"}
-    coarse_faces : int
-        Face budget of ``coarse="decimate"``.
+    Attributes:
+        rotate (bool): Random (uniform) rotation of the canonical frame.
+        scale_range ((2,) float): The canonical mesh's max extent is drawn log-uniformly in this
+            range.
+        shape: {"oracle", "smooth", "coarse"}
+        amplitude (float): RMS normal displacement of ``"smooth"`` as a fraction of the max extent.
+        coarse: {"hull", "decimate"}
+        coarse_faces (int): Face budget of ``coarse="decimate"``.
     """
 
     rotate: bool = False
@@ -160,13 +156,10 @@ def _root_joint(model, betas: torch.Tensor) -> torch.Tensor:
 def transform_hand(params: HandParams, R, t, model) -> HandParams:
     """Hand parameters after the rigid motion ``x -> R @ x + t`` of the posed hand.
 
-    Parameters
-    ----------
-    params : HandParams
-        Batch 1, right hand.
-    R : (3, 3), t : (3,)
-    model : HandModel
-        Needed for the root joint position (it depends on the shape).
+    Args:
+        params (HandParams): Batch 1, right hand.
+        R: (3, 3), t : (3,)
+        model (HandModel): Needed for the root joint position (it depends on the shape).
     """
     dtype = params.pose.dtype
     R = torch.as_tensor(np.asarray(R), dtype=dtype)
@@ -181,17 +174,14 @@ def transform_hand(params: HandParams, R, t, model) -> HandParams:
 def perturb_hand(params: HandParams, noise: HandNoise, model, rng: np.random.Generator):
     """Apply the hand estimator error to a hand expressed in a camera frame.
 
-    Parameters
-    ----------
-    params : HandParams
-        GT hand in the camera frame (batch 1).
-    noise : HandNoise
-    model : HandModel
-    rng : numpy Generator
+    Args:
+        params (HandParams): GT hand in the camera frame (batch 1).
+        noise: HandNoise
+        model: HandModel
+        rng: numpy Generator
 
-    Returns
-    -------
-    HandParams
+    Returns:
+        HandParams
     """
     dtype = params.pose.dtype
     pose = params.pose + torch.as_tensor(rng.normal(0, noise.articulation, (1, 45)), dtype=dtype)
@@ -234,19 +224,15 @@ def smooth_deformation(mesh: trimesh.Trimesh, amplitude: float, rng: np.random.G
 def perturb_object(mesh: trimesh.Trimesh, noise: ObjectNoise, rng: np.random.Generator):
     """Object mesh in a canonical frame with reconstruction errors.
 
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-        GT object, world frame, metres.
-    noise : ObjectNoise
-    rng : numpy Generator
+    Args:
+        mesh (trimesh.Trimesh): GT object, world frame, metres.
+        noise: ObjectNoise
+        rng: numpy Generator
 
-    Returns
-    -------
-    mesh : trimesh.Trimesh
-        The canonical (possibly distorted) mesh.
-    canonical_from_world : (4, 4) float64
-        The similarity ``x_can = s * Rc @ (x_world - c)`` (before distortion).
+    Returns:
+        mesh (trimesh.Trimesh): The canonical (possibly distorted) mesh.
+        canonical_from_world ((4, 4) float64): The similarity ``x_can = s * Rc @ (x_world - c)``
+            (before distortion).
     """
     v = np.asarray(mesh.vertices, float)
     lo, hi = v.min(axis=0), v.max(axis=0)
@@ -335,23 +321,18 @@ def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
 def make_hoi_input(scene, perturbation="none", seed: int = 0, rotate: bool | None = None):
     """Build the optimizer's :class:`~easyhoi.hoi.HOIInput` from a scene.
 
-    Parameters
-    ----------
-    scene : Scene
-    perturbation : str or Perturbation
-    seed : int
-        Seeds every perturbation (independent streams for hand, object and each mask).
-    rotate : bool, optional
-        Override the level's random canonical rotation.
+    Args:
+        scene: SynthScene
+        perturbation: str or Perturbation
+        seed (int): Seeds every perturbation (independent streams for hand, object and each mask).
+        rotate (bool, optional): Override the level's random canonical rotation.
 
-    Returns
-    -------
-    HOIInput
-        Hand in the estimator camera (= the GT camera's intrinsics, identity extrinsics);
-        masks M_h (visible hand), M_o (visible object), M^_o (amodal object) after the mask
-        errors; ``complete_hand_mask`` None. ``meta["gt"]`` holds the ground truth:
-        ``canonical_from_world`` (4x4), ``metres_per_unit``, ``hand_params_world``,
-        ``hand_params_camera``, ``camera`` (world-to-camera), plus the level's name.
+    Returns:
+        HOIInput: Hand in the estimator camera (= the GT camera's intrinsics, identity extrinsics);
+            masks M_h (visible hand), M_o (visible object), M^_o (amodal object) after the mask
+            errors; ``complete_hand_mask`` None. ``meta["gt"]`` holds the ground truth:
+            ``canonical_from_world`` (4x4), ``metres_per_unit``, ``hand_params_world``,
+            ``hand_params_camera``, ``camera`` (world-to-camera), plus the level's name.
     """
     from dataclasses import replace
 

@@ -34,17 +34,12 @@ SKIN_TONES = (
 class SurfaceLayer:
     """One mesh seen by the camera (hard raster, nearest layer).
 
-    Attributes
-    ----------
-    face_ids : (H, W) int64
-        Face hit per pixel, -1 where missed.
-    bary : (H, W, 3) float
-        Perspective-correct barycentrics of the hit.
-    depth : (H, W) float
-        Camera z of the hit, ``inf`` where missed.
-    vertices : (V, 3) float
-        World positions (metres).
-    faces : (F, 3) int
+    Attributes:
+        face_ids ((H, W) int64): Face hit per pixel, -1 where missed.
+        bary ((H, W, 3) float): Perspective-correct barycentrics of the hit.
+        depth ((H, W) float): Camera z of the hit, ``inf`` where missed.
+        vertices ((V, 3) float): World positions (metres).
+        faces: (F, 3) int
     """
 
     face_ids: np.ndarray
@@ -137,23 +132,17 @@ def shade_photo(
 ) -> np.ndarray:
     """Compose the photo.
 
-    Parameters
-    ----------
-    hand, obj : SurfaceLayer
-        Nearest-surface fragments of the hand and of the object (same camera).
-    camera_center : (3,) float
-        Camera centre in world coordinates (for the view vector).
-    light : (3,) float
-        Unit direction towards the key light (world).
-    skin : (3,) float
-        Skin albedo in [0, 1].
-    obj_albedo_fn : callable
-        (N, 3) world points -> (N, 3) albedo of the object.
-    rng : numpy Generator
+    Args:
+        hand, obj (SurfaceLayer): Nearest-surface fragments of the hand and of the object (same
+            camera).
+        camera_center ((3,) float): Camera centre in world coordinates (for the view vector).
+        light ((3,) float): Unit direction towards the key light (world).
+        skin ((3,) float): Skin albedo in [0, 1].
+        obj_albedo_fn (callable): (N, 3) world points -> (N, 3) albedo of the object.
+        rng: numpy Generator
 
-    Returns
-    -------
-    (H, W, 3) uint8
+    Returns:
+        (H, W, 3) uint8
     """
     H, W = hand.face_ids.shape
     img = background(H, W, rng)

@@ -3,7 +3,7 @@
 :func:`make_scene` builds, from one seed: an object (:mod:`easyhoi.synth.objects`), a grasp of
 it (:mod:`easyhoi.synth.grasp`), a camera looking at the pair, the ground truth seen by that
 camera (visible and amodal masks of both, depth, 2D/3D keypoints) and a shaded photo
-(:mod:`easyhoi.synth.photo`). :meth:`Scene.to_hoi_input` turns a scene into the optimizer's
+(:mod:`easyhoi.synth.photo`). :meth:`SynthScene.to_hoi_input` turns a scene into the optimizer's
 input with perturbations standing in for the large models (:mod:`easyhoi.synth.perturb`).
 
 World frame = the object's metric frame (metres, the object centred on its bounding box).
@@ -44,7 +44,7 @@ HOLD_ROLL_STEP_DEG = 30.0
 
 
 @dataclass(frozen=True)
-class Scene:
+class SynthScene:
     """One synthetic hand-object image with its ground truth.
 
     Attributes
@@ -277,7 +277,7 @@ def make_scene(
     photo: bool = True,
     check_stability: bool = False,
     hold: bool = False,
-) -> Scene:
+) -> SynthScene:
     """Build a synthetic scene.
 
     Parameters
@@ -299,11 +299,11 @@ def make_scene(
     hold : bool
         Turn the camera about its viewing axis until the grasp holds the object under gravity
         along the image's down direction (:func:`_holding_roll`), as in a photo of an object
-        held up; the displacement is kept in ``Scene.gravity_sd_cm``.
+        held up; the displacement is kept in ``SynthScene.gravity_sd_cm``.
 
     Returns
     -------
-    Scene
+    SynthScene
     """
     if not isinstance(image_size, int) or image_size < 32:
         raise InvalidInputError(f"image_size must be an integer >= 32, got {image_size!r}")
@@ -355,7 +355,7 @@ def make_scene(
     t5 = time.perf_counter()
     timings = {"object": t1 - t0, "grasp": t2 - t1, "camera": t3 - t2, "render": t4 - t3,
                "photo": t5 - t4, "total": t5 - t0}  # fmt: skip
-    return Scene(int(seed), obj, grasp, cam, image, hand_vis, obj_vis, h_hit, o_hit, depth,
+    return SynthScene(int(seed), obj, grasp, cam, image, hand_vis, obj_vis, h_hit, o_hit, depth,
                  kp3, kp2, timings, model, gravity_sd)  # fmt: skip
 
 
@@ -370,4 +370,4 @@ def _default_model():
     return _MODEL["open"]
 
 
-__all__ = ["Scene", "frame_camera", "make_scene"]
+__all__ = ["SynthScene", "frame_camera", "make_scene"]

@@ -253,7 +253,7 @@ def preset_by_group_table(report: dict, field: str = "grasp") -> str:
 
 
 def goals(report: dict) -> list[dict]:
-    """The paper-derived goals (METHOD.md section 4) with the measured value and pass / miss."""
+    """The paper-derived goals (docs/method.md section 4) with the measured value and verdict."""
     sc = report["scenes"]
 
     def mean(getter, key):

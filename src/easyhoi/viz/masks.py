@@ -35,10 +35,9 @@ _NONE = (245, 245, 245)
 def rendered_masks(result: HOIResult, height: int, width: int) -> dict[str, np.ndarray]:
     """Masks of the final reconstruction on an ``height`` x ``width`` pixel grid.
 
-    Returns
-    -------
-    dict of str -> (H, W) bool
-        ``hand_visible``, ``object_visible``, ``hand_amodal``, ``object_amodal``.
+    Returns:
+        dict of str -> (H, W) bool: ``hand_visible``, ``object_visible``, ``hand_amodal``,
+            ``object_amodal``.
     """
     result = _check_result(result)
     cam = photo_camera(result.camera, np.zeros((height, width, 3), np.uint8))

@@ -9,14 +9,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from easyhoi.errors import EasyHOIError, InvalidInputError
+from easyhoi.errors import InvalidInputError
 from easyhoi.hoi import HOIResult, StageResult
 from easyhoi.structures import Camera
 from easyhoi.viz.shade import HAND_COLOR, OBJECT_COLOR, Render, SceneMesh, render_shaded
 
 __all__ = [
     "OVERLAY_ALPHA",
-    "hand_model_for",
     "photo_camera",
     "render_overlay",
     "result_meshes",
@@ -47,16 +46,6 @@ def result_meshes(
     return [hand, _object_mesh(result, object_color)]
 
 
-def hand_model_for(result: HOIResult):
-    """The result's hand model in float64, or None when it cannot be loaded (MANO absent)."""
-    from easyhoi.hand import load_hand_model
-
-    try:
-        return load_hand_model(result.hand_model, dtype=torch.float64)
-    except (EasyHOIError, OSError):
-        return None
-
-
 def stage_meshes(
     result: HOIResult,
     stage: StageResult,
@@ -66,23 +55,16 @@ def stage_meshes(
 ) -> tuple[list[SceneMesh], Camera, str]:
     """What one stage snapshot looked like.
 
-    Parameters
-    ----------
-    result : HOIResult
-    stage : StageResult
-        One of ``result.stages``.
-    hand_model : HandModel or None
-        Poses the snapshot's hand parameters; without it only the final stage can show the hand
-        (from ``result.hand_vertices``).
+    Args:
+        result: HOIResult
+        stage (StageResult): One of ``result.stages``.
+        hand_model (HandModel or None): Poses the snapshot's hand parameters; without it only the
+            final stage can show the hand (from ``result.hand_vertices``).
 
-    Returns
-    -------
-    meshes : list of SceneMesh
-        The hand (when known) and the object, in object units.
-    camera : Camera
-        The stage's camera (the final camera when the snapshot has none).
-    note : str
-        Empty, or why the hand is missing.
+    Returns:
+        meshes (list of SceneMesh): The hand (when known) and the object, in object units.
+        camera (Camera): The stage's camera (the final camera when the snapshot has none).
+        note (str): Empty, or why the hand is missing.
     """
     scale = stage.metric_scale if stage.metric_scale else result.metric_scale
     camera = stage.camera if stage.camera is not None else result.camera
@@ -127,20 +109,15 @@ def render_overlay(
 ) -> Render:
     """Hand and object shaded over the photo.
 
-    Parameters
-    ----------
-    result : HOIResult
-    image : (H, W, 3) uint8
-        The photo.
-    alpha : float
-        Mesh opacity.
-    meshes, camera : optional
-        Draw these instead of the final reconstruction (used for stage snapshots).
+    Args:
+        result: HOIResult
+        image ((H, W, 3) uint8): The photo.
+        alpha (float): Mesh opacity.
+        meshes, camera (optional): Draw these instead of the final reconstruction (used for stage
+            snapshots).
 
-    Returns
-    -------
-    Render
-        Same size as the photo; pixels no mesh covers are the photo's, unchanged.
+    Returns:
+        Render: Same size as the photo; pixels no mesh covers are the photo's, unchanged.
     """
     result = _check_result(result)
     image = _check_image(image)

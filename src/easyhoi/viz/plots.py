@@ -47,16 +47,13 @@ def figure_png(fig) -> bytes:
 def stage_loss_series(losses: list[dict]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Iteration numbers and one series per numeric loss key of a stage history.
 
-    Parameters
-    ----------
-    losses : list of dict
-        ``StageResult.losses``; ``"iter"`` (if present) gives the x axis, every other key with
-        numeric values becomes a series (missing entries are NaN).
+    Args:
+        losses (list of dict): ``StageResult.losses``; ``"iter"`` (if present) gives the x axis,
+            every other key with numeric values becomes a series (missing entries are NaN).
 
-    Returns
-    -------
-    x : (N,) float
-    series : dict of str -> (N,) float
+    Returns:
+        x: (N,) float
+        series: dict of str -> (N,) float
     """
     x = np.array(
         [float(d.get("iter", i)) if _is_num(d.get("iter", i)) else i for i, d in enumerate(losses)]

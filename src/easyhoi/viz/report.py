@@ -20,7 +20,15 @@ from easyhoi.errors import InvalidInputError
 from easyhoi.hoi import HOIInput, HOIResult
 from easyhoi.io.atomic import atomic_write_text
 
-__all__ = ["PICTURES", "fmt", "render_pictures", "report_html", "write_report"]
+__all__ = [
+    "PICTURES",
+    "PICTURE_MAX_SIDE",
+    "fmt",
+    "picture_scale",
+    "render_pictures",
+    "report_html",
+    "write_report",
+]
 
 #: Pictures of the report: file name -> caption.
 PICTURES = {
@@ -95,19 +103,69 @@ def _img(data: bytes, alt: str) -> str:
     return f'<img src="data:image/png;base64,{b64}" alt="{html.escape(alt)}">'
 
 
-def render_pictures(result: HOIResult, inp: HOIInput) -> dict[str, bytes]:
-    """PNG bytes of every picture in :data:`PICTURES` (the expensive part of a report)."""
+#: Pictures are drawn at most this many pixels on the photo's longer side (drawing with the
+#: CPU rasterizer costs time in proportion to the pixel count; the photo itself keeps its size).
+PICTURE_MAX_SIDE = 1024
+
+
+def picture_scale(
+    result: HOIResult, inp: HOIInput, max_side: int = PICTURE_MAX_SIDE
+) -> tuple[HOIResult, HOIInput]:
+    """``result`` and ``inp`` at picture size: photo, masks and every camera downscaled.
+
+    Returns the arguments unchanged when the photo's longer side is at most ``max_side``.
+    """
+    from dataclasses import replace
+
+    import cv2
+
+    H, W = inp.image.shape[:2]
+    if max(H, W) <= max_side:
+        return result, inp
+    s = max_side / max(H, W)
+    w, h = max(1, round(W * s)), max(1, round(H * s))
+
+    def img(a):
+        return None if a is None else cv2.resize(a, (w, h), interpolation=cv2.INTER_AREA)
+
+    def mask(m):
+        if m is None:
+            return None
+        small = cv2.resize(m.astype("uint8"), (w, h), interpolation=cv2.INTER_NEAREST)
+        return small.astype(bool)
+
+    def cam(c):
+        return None if c is None else c.resized(w, h)
+
+    small_inp = replace(
+        inp, image=img(inp.image), hand_mask=mask(inp.hand_mask),
+        object_mask=mask(inp.object_mask), amodal_mask=mask(inp.amodal_mask),
+        inpainted_image=img(inp.inpainted_image),
+        complete_hand_mask=mask(inp.complete_hand_mask), hand_camera=cam(inp.hand_camera),
+    )  # fmt: skip
+    stages = tuple(replace(st, camera=cam(st.camera)) for st in result.stages)
+    return replace(result, camera=cam(result.camera), stages=stages), small_inp
+
+
+def render_pictures(result: HOIResult, inp: HOIInput, hand_model=None) -> dict[str, bytes]:
+    """PNG bytes of every picture in :data:`PICTURES` (the expensive part of a report).
+
+    Args:
+        result: The reconstruction.
+        inp: Its input (photo and masks).
+        hand_model: The run's hand model, posing the stage snapshots' hands (None: only the
+            final stage shows the hand).
+    """
     from easyhoi.viz.masks import masks_png
-    from easyhoi.viz.overlay import hand_model_for, render_overlay
+    from easyhoi.viz.overlay import render_overlay
     from easyhoi.viz.plots import losses_png, png_bytes
     from easyhoi.viz.stages import stages_png
     from easyhoi.viz.views import views_png
 
-    model = hand_model_for(result)
     return {
         "overlay.png": png_bytes(render_overlay(result, inp.image).image),
         "views.png": views_png(result),
-        "stages.png": stages_png(result, inp.image, model),
+        "stages.png": stages_png(result, inp.image, hand_model),
         "masks.png": masks_png(result, inp),
         "losses.png": losses_png(result),
     }
@@ -154,13 +212,13 @@ def report_html(
 ) -> str:
     """The report page as a string.
 
-    Parameters
-    ----------
-    result, inp : HOIResult, HOIInput
-    images : mapping of file name -> PNG bytes, optional
-        Pictures already rendered (keys of :data:`PICTURES`); missing ones are rendered.
-    title : str
-        Shown in the heading (e.g. the photo's name); defaults to ``result.meta["image"]``.
+    Args:
+        result: The reconstruction.
+        inp: Its input.
+        images: Pictures already rendered, file name -> PNG bytes (keys of :data:`PICTURES`);
+            missing ones are rendered.
+        title: Shown in the heading (e.g. the photo's name); defaults to
+            ``result.meta["image"]``.
     """
     from easyhoi.io.export import result_json
     from easyhoi.viz.masks import mask_ious

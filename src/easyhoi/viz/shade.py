@@ -44,16 +44,11 @@ _AMBIENT = 0.30
 class SceneMesh:
     """One mesh to draw.
 
-    Attributes
-    ----------
-    vertices : (V, 3) float
-        World-space vertices (the camera's world frame and units).
-    faces : (F, 3) int
-        Triangles.
-    color : (3,) int
-        RGB colour in 0..255.
-    name : str
-        Label used in legends.
+    Attributes:
+        vertices ((V, 3) float): World-space vertices (the camera's world frame and units).
+        faces ((F, 3) int): Triangles.
+        color ((3,) int): RGB colour in 0..255.
+        name (str): Label used in legends.
     """
 
     vertices: np.ndarray
@@ -82,14 +77,11 @@ class SceneMesh:
 class Render:
     """A shaded picture and what covers each pixel.
 
-    Attributes
-    ----------
-    image : (H, W, 3) uint8
-        The composited picture.
-    labels : (H, W) int64
-        Index of the mesh seen at each pixel (into the ``meshes`` given), -1 where none.
-    depth : (H, W) float64
-        Camera z of the nearest surface, ``inf`` where none.
+    Attributes:
+        image ((H, W, 3) uint8): The composited picture.
+        labels ((H, W) int64): Index of the mesh seen at each pixel (into the ``meshes`` given), -1
+            where none.
+        depth ((H, W) float64): Camera z of the nearest surface, ``inf`` where none.
     """
 
     image: np.ndarray
@@ -104,19 +96,15 @@ class Render:
 def corner_normals(vertices: np.ndarray, faces: np.ndarray, crease_deg: float = 40.0):
     """Per-corner normals, smooth across soft edges and sharp across creases.
 
-    Parameters
-    ----------
-    vertices : (V, 3) float
-    faces : (F, 3) int
-    crease_deg : float
-        A neighbouring face contributes to a corner's normal only if its normal is within this
-        angle of the corner's own face normal (so a box keeps flat sides).
+    Args:
+        vertices: (V, 3) float
+        faces: (F, 3) int
+        crease_deg (float): A neighbouring face contributes to a corner's normal only if its normal
+            is within this angle of the corner's own face normal (so a box keeps flat sides).
 
-    Returns
-    -------
-    (F, 3, 3) float64
-        Unit normal at each corner of each face (area-weighted average of the contributing
-        neighbours; the face normal where nothing else contributes).
+    Returns:
+        (F, 3, 3) float64: Unit normal at each corner of each face (area-weighted average of the
+            contributing neighbours; the face normal where nothing else contributes).
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -168,24 +156,18 @@ def render_shaded(
 ) -> Render:
     """Draw meshes, shaded, over a background.
 
-    Parameters
-    ----------
-    meshes : sequence of SceneMesh
-        In the camera's world frame; they occlude each other.
-    camera : Camera
-        Output size ``(camera.height, camera.width)``.
-    background : (H, W, 3) uint8, (3,) colour, or None
-        What lies behind the meshes; None is white.
-    alpha : float
-        Opacity of the meshes in [0, 1]; 1 hides the background where a mesh is.
-    outline : bool
-        Darken covered pixels on the border between two meshes or a mesh and the background,
-        so that hand and object stay apart in the picture.
+    Args:
+        meshes (sequence of SceneMesh): In the camera's world frame; they occlude each other.
+        camera (Camera): Output size ``(camera.height, camera.width)``.
+        background ((H, W, 3) uint8, (3,) colour, or None): What lies behind the meshes; None is
+            white.
+        alpha (float): Opacity of the meshes in [0, 1]; 1 hides the background where a mesh is.
+        outline (bool): Darken covered pixels on the border between two meshes or a mesh and the
+            background, so that hand and object stay apart in the picture.
 
-    Returns
-    -------
-    Render
-        Picture, per-pixel mesh labels and depth. Pixels no mesh covers equal the background.
+    Returns:
+        Render: Picture, per-pixel mesh labels and depth. Pixels no mesh covers equal the
+            background.
     """
     if not 0.0 <= alpha <= 1.0:
         raise InvalidInputError(f"alpha must be in [0, 1], got {alpha}")

@@ -10,7 +10,6 @@ from easyhoi.hoi import HOIResult
 from easyhoi.viz.overlay import (
     _check_image,
     _check_result,
-    hand_model_for,
     render_overlay,
     result_meshes,
     stage_meshes,
@@ -27,29 +26,24 @@ def render_stages(
 ) -> list[tuple[str, np.ndarray, str]]:
     """Overlays of every stage snapshot.
 
-    Parameters
-    ----------
-    result : HOIResult
-    image : (H, W, 3) uint8
-        The photo.
-    hand_model : HandModel or None
-        Poses the snapshots' hands; loaded from ``result.hand_model`` when None (if it cannot
-        be loaded, earlier snapshots show the object only).
+    Args:
+        result: The reconstruction.
+        image: (H, W, 3) uint8, the photo.
+        hand_model: The run's hand model, posing the snapshots' hands; without it the earlier
+            snapshots show the object only.
 
-    Returns
-    -------
-    list of (name, (H, W, 3) uint8 overlay, note)
-        In stage order; ``note`` is empty or says why the hand is missing. A result without
-        stages gives one panel ``("final", ...)``.
+    Returns:
+        ``(name, (H, W, 3) uint8 overlay, note)`` per stage, in stage order; ``note`` is empty
+        or says why the hand is missing. A result without stages gives one panel
+        ``("final", ...)``.
     """
     result = _check_result(result)
     image = _check_image(image)
     if not result.stages:
         return [("final", render_overlay(result, image).image, "")]
-    model = hand_model if hand_model is not None else hand_model_for(result)
     out = []
     for st in result.stages:
-        meshes, cam, note = stage_meshes(result, st, model)
+        meshes, cam, note = stage_meshes(result, st, hand_model)
         out.append((st.name, render_overlay(result, image, meshes=meshes, camera=cam).image, note))
     return out
 

@@ -38,21 +38,14 @@ def view_cameras(
 ) -> dict[str, Camera]:
     """Cameras around ``center`` oriented from the photo camera's axes.
 
-    Parameters
-    ----------
-    center : (3,) float
-        Point every view looks at (world frame).
-    radius : float
-        Radius of a sphere around ``center`` that must fit in every view.
-    photo_camera : Camera
-        Its rotation defines front / side / top / back.
-    size : int
-        Width and height of each view in pixels.
+    Args:
+        center ((3,) float): Point every view looks at (world frame).
+        radius (float): Radius of a sphere around ``center`` that must fit in every view.
+        photo_camera (Camera): Its rotation defines front / side / top / back.
+        size (int): Width and height of each view in pixels.
 
-    Returns
-    -------
-    dict of str -> Camera
-        Keyed by :data:`VIEW_NAMES`.
+    Returns:
+        dict of str -> Camera: Keyed by :data:`VIEW_NAMES`.
     """
     c = np.asarray(center, dtype=np.float64)
     R = photo_camera.detach().R.double().numpy()
@@ -86,9 +79,8 @@ def render_views(result: HOIResult, size: int | None = None) -> dict[str, np.nda
 
     ``size`` defaults to :data:`VIEW_SIZE` (read at call time).
 
-    Returns
-    -------
-    dict of str -> (size, size, 3) uint8
+    Returns:
+        dict of str -> (size, size, 3) uint8
     """
     result = _check_result(result)
     size = VIEW_SIZE if size is None else int(size)

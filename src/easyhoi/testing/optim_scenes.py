@@ -25,7 +25,7 @@ from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hand import load_hand_model
 from easyhoi.hand.regions import grasp_pose
 from easyhoi.hoi import HOIInput
-from easyhoi.optim.scene import move_hand, rest_wrist
+from easyhoi.optim.placement import move_hand, rest_wrist
 from easyhoi.render.raster import depth_map
 from easyhoi.structures import Camera, HandParams
 

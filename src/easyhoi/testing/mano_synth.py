@@ -39,11 +39,10 @@ CAP_INTERIOR = 10  # 16 * 48 + 10 = 778 vertices
 def tube_mesh(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A closed, consistently outward-wound tube (778 vertices, 1552 faces).
 
-    Returns
-    -------
-    vertices : (778, 3) float64, metres, the tube runs along +y from y = 0.
-    faces : (1552, 3) int64.
-    wrist_faces : (14,) bool mask of the fan closing ring 0 (the future opening).
+    Returns:
+        vertices: (778, 3) float64, metres, the tube runs along +y from y = 0.
+        faces: (1552, 3) int64.
+        wrist_faces: (14,) bool mask of the fan closing ring 0 (the future opening).
     """
     import trimesh
 

@@ -1,4 +1,4 @@
-"""Shared per-run state of the optimizer: object tensors, masks per resolution, SDF, hand model.
+"""The optimizer's per-run state: object tensors, masks per resolution, SDF, hand model.
 
 Frames and units used by every stage (see :mod:`easyhoi.hoi`):
 
@@ -27,28 +27,16 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from easyhoi.errors import InvalidInputError, OptimizationError
-from easyhoi.geometry.transforms import axis_angle_to_matrix, matrix_to_axis_angle
+from easyhoi.errors import InvalidInputError
 from easyhoi.hand.base import HandModel, HandRegions
 from easyhoi.hoi import HOIInput
 from easyhoi.render.raster import depth_map
 from easyhoi.render.soft import DEFAULT_CULL_EPS, cull_margin, soft_silhouette
-from easyhoi.structures import Camera, HandParams
+from easyhoi.structures import Camera
 
 logger = logging.getLogger(__name__)
 
-__all__ = [
-    "SILHOUETTE_SIGMA",
-    "Scene",
-    "StageLoop",
-    "camera_hand_to_object",
-    "check_finite_loss",
-    "hand_in_camera",
-    "hard_iou",
-    "move_hand",
-    "phase_sizes",
-    "rest_wrist",
-]
+__all__ = ["SILHOUETTE_SIGMA", "Scene", "hard_iou"]
 
 #: Sharpness (pixels squared) of every soft silhouette of the optimizer. Smaller than the
 #: renderer's default (1 px^2): coverage is a probabilistic union that counts back faces, so at
@@ -222,194 +210,8 @@ class Scene:
         return hand, visible, zh
 
 
-# ------------------------------------------------------------------------------------------------
-# hand placement helpers
-# ------------------------------------------------------------------------------------------------
-
-
-def rest_wrist(model: HandModel, betas: torch.Tensor) -> torch.Tensor:
-    """(3,) wrist joint of the flat rest pose for ``betas`` (the centre of global_orient)."""
-    with torch.no_grad():
-        _, joints = model.shaped(betas.reshape(1, -1))
-    return joints[0, 0]
-
-
-def move_hand(p: HandParams, R: torch.Tensor, t: torch.Tensor, wrist: torch.Tensor) -> HandParams:
-    """Parameters of the hand ``R x + t`` (rigid motion applied to every vertex).
-
-    ``wrist`` (3,) is the rest wrist joint (:func:`rest_wrist`); ``R`` (3, 3), ``t`` (3,).
-
-    Right hands: the model is ``Rot(go) (x - J) + J + transl``; left hands are mirrored, so the
-    motion is conjugated by the mirror before it is applied to the mirrored parameters.
-    """
-    if p.side == "left":
-        M = torch.diag(torch.tensor([-1.0, 1.0, 1.0], dtype=R.dtype))
-        R_, t_ = M @ R @ M, M @ t
-    else:
-        R_, t_ = R, t
-    go = matrix_to_axis_angle(R_ @ axis_angle_to_matrix(_right(p).global_orient[0]))
-    tr = R_ @ (wrist + _right(p).transl[0]) + t_ - wrist
-    out = HandParams(go[None], tr[None], _right(p).pose, _right(p).betas, "right")
-    if p.side == "left":
-        from easyhoi.hand.base import mirror_params
-
-        return mirror_params(out)
-    return out
-
-
-def _right(p: HandParams) -> HandParams:
-    from easyhoi.hand.base import mirror_params
-
-    return mirror_params(p) if p.side == "left" else p
-
-
-def hand_in_camera(params: HandParams, camera: Camera, model: HandModel) -> HandParams:
-    """Hand parameters given in ``camera``'s world frame -> the camera's own frame (metres)."""
-    wrist = rest_wrist(model, params.betas.to(params.pose.dtype))
-    p = params.to(dtype=camera.K.dtype)
-    return move_hand(p, camera.R.detach(), camera.t.detach(), wrist.to(camera.K.dtype))
-
-
-def camera_hand_to_object(
-    params_cam: HandParams, camera: Camera, metric_scale: float, model: HandModel
-) -> HandParams:
-    """Hand in the object camera's frame (metres) -> hand in the metric object frame.
-
-    Object-unit vertices are ``R^T (V_cam / m - t)``; in the metric object frame (times ``m``)
-    that is the rigid motion ``x -> R^T x - m R^T t`` of the camera-frame hand.
-    """
-    wrist = rest_wrist(model, params_cam.betas).to(params_cam.pose.dtype)
-    R = camera.R.detach().to(params_cam.pose.dtype)
-    t = camera.t.detach().to(params_cam.pose.dtype)
-    return move_hand(params_cam, R.T, -metric_scale * (R.T @ t), wrist)
-
-
-# ------------------------------------------------------------------------------------------------
-# small shared utilities
-# ------------------------------------------------------------------------------------------------
-
-
-def phase_sizes(max_iters: int, phases: int) -> list[int]:
-    """Split ``max_iters`` into ``phases`` near-equal parts (earlier phases get the remainder)."""
-    base, rest = divmod(int(max_iters), phases)
-    return [base + (1 if i < rest else 0) for i in range(phases)]
-
-
-def check_finite_loss(stage: str, terms: dict) -> None:
-    """Raise :class:`OptimizationError` naming ``stage`` when a loss term is NaN or infinite."""
-    for k, v in terms.items():
-        if not math.isfinite(float(v)):
-            raise OptimizationError(
-                f"stage {stage!r}: loss term {k!r} became {float(v)} (diverged); try a smaller "
-                "learning rate or check the input masks and meshes"
-            )
-
-
 def hard_iou(pred: torch.Tensor, target: torch.Tensor) -> float:
     """IoU of two masks thresholded at 0.5."""
     a, b = pred.detach() > 0.5, target.detach() > 0.5
     union = int((a | b).sum())
     return float((a & b).sum()) / union if union else 1.0
-
-
-class Patience:
-    """Early stopping: exhausted once ``patience`` steps pass without a ``min_delta`` gain.
-
-    ``patience = 0`` never stops (the paper preset runs its full schedule).
-    """
-
-    def __init__(self, patience: int, min_delta: float):
-        self.patience = int(patience)
-        self.min_delta = float(min_delta)
-        self.reset()
-
-    def reset(self) -> None:
-        self.best = math.inf
-        self.since_best = 0
-
-    def exhausted(self, value: float) -> bool:
-        """Record ``value``; True when the caller should stop."""
-        if value < self.best - self.min_delta:
-            self.best, self.since_best = value, 0
-        else:
-            self.since_best += 1
-        return bool(self.patience) and self.since_best >= self.patience
-
-
-class StageLoop:
-    """Bookkeeping shared by the stages: history, progress callback, best state, stopping.
-
-    Parameters
-    ----------
-    name : str
-        Stage name (for the callback and errors).
-    max_iters : int
-        Iteration cap (for the callback).
-    history_every : int
-        Record every this many iterations.
-    progress : callable or None
-        ``progress(stage, iteration, max_iters, terms)``.
-    """
-
-    def __init__(self, name: str, max_iters: int, history_every: int, progress=None):
-        self.name = name
-        self.max_iters = max_iters
-        self.every = max(1, int(history_every))
-        self.progress = progress
-        self.history: list[dict] = []
-        self.best_score = math.inf
-        self.best_state = None
-        self.best_iter = -1
-
-    def record(self, it: int, terms: dict, force: bool = False) -> None:
-        """Check the terms for NaN; store and report them every ``history_every`` iterations."""
-        plain = {k: float(v) for k, v in terms.items()}
-        check_finite_loss(self.name, plain)
-        if force or it % self.every == 0:
-            self.history.append({"iter": int(it), **plain})
-            if self.progress is not None:
-                self.progress(self.name, int(it), int(self.max_iters), plain)
-
-    def offer(self, score: float, state, it: int) -> bool:
-        """Keep ``state`` when ``score`` is the lowest so far; returns True when kept."""
-        if score < self.best_score:
-            self.best_score, self.best_state, self.best_iter = float(score), state, int(it)
-            return True
-        return False
-
-    def reset_best(self) -> None:
-        self.best_score, self.best_state, self.best_iter = math.inf, None, -1
-
-    @staticmethod
-    def step(opt, loss: torch.Tensor) -> None:
-        """One optimizer step on ``loss`` (gradients cleared first)."""
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-
-    def restore_best(self, load) -> None:
-        """``load(best_state)`` when a state was kept (the stage's variables go back to it)."""
-        if self.best_state is not None:
-            load(self.best_state)
-
-
-def early_stop(loss: float, stop_loss: float, patience: Patience, total: float) -> str | None:
-    """``"stop_loss"`` once ``loss < stop_loss``, else ``"patience"`` once ``total`` stopped
-    improving (:meth:`Patience.exhausted`), else None."""
-    if loss < stop_loss:
-        return "stop_loss"
-    if patience.exhausted(total):
-        return "patience"
-    return None
-
-
-def snapshot(tensors) -> tuple[torch.Tensor, ...]:
-    """Detached copies of ``tensors``: a state for :meth:`StageLoop.offer`."""
-    return tuple(t.detach().clone() for t in tensors)
-
-
-def restore(tensors, state) -> None:
-    """Copy a :func:`snapshot` back into ``tensors`` in place."""
-    with torch.no_grad():
-        for t, s in zip(tensors, state, strict=True):
-            t.copy_(s)

@@ -1,0 +1,86 @@
+"""A run's settings, resolved once: configuration, hand model instance, seed and device.
+
+Every entry point (the CLI commands, the batch worker, the web demo, library callers of
+:func:`easyhoi.pipeline.reconstruct_photo`) builds one :class:`RunSettings` with
+:func:`resolve_run` and passes it down: perception fits the hand with ``settings.hand_model``,
+the optimizer poses the same instance, and the pictures of the result folder draw it. Nothing
+below this point loads a hand model or picks a seed of its own, so a MANO folder given once
+(``--mano-dir``) reaches every step, and ``optim.seed`` is the one seed of the run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from easyhoi.config import EasyHOIConfig, get_preset, with_overrides
+from easyhoi.errors import InvalidInputError
+
+__all__ = ["DEVICES", "RunSettings", "resolve_run"]
+
+#: Devices a run can use. Everything runs on the CPU; the field exists so that a GPU path can be
+#: chosen here, in one place, without changing the callers.
+DEVICES = ("cpu",)
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """Everything one reconstruction needs besides its inputs.
+
+    Attributes:
+        config: The configuration tree; ``config.optim.seed`` is the run's seed.
+        hand_model: The hand model instance (``config.hand_model``, in ``config.optim.dtype``),
+            shared by perception, the optimizer and the pictures. Models are stateless layers,
+            so one instance serves any number of photos.
+        device: Where tensors live (one of :data:`DEVICES`).
+    """
+
+    config: EasyHOIConfig
+    hand_model: object
+    device: str = "cpu"
+
+    @property
+    def seed(self) -> int:
+        """The run's seed (``config.optim.seed``): every random choice derives from it."""
+        return self.config.optim.seed
+
+    def with_seed(self, seed: int) -> RunSettings:
+        """The same settings with another seed (checked like ``--set optim.seed=...``)."""
+        return replace(self, config=with_overrides(self.config, {"optim.seed": seed}))
+
+
+def resolve_run(
+    config: EasyHOIConfig | None = None,
+    *,
+    seed: int | None = None,
+    hand_model=None,
+    device: str = "cpu",
+) -> RunSettings:
+    """Resolve a run's settings once.
+
+    Args:
+        config: The configuration (None: the default preset).
+        seed: Replaces ``config.optim.seed`` when given (None: keep the configuration's seed).
+        hand_model: An already loaded hand model to use (None: load ``config.hand_model`` from
+            ``config.mano_dir``, in ``config.optim.dtype``).
+        device: One of :data:`DEVICES`.
+
+    Returns:
+        The resolved :class:`RunSettings`.
+
+    Raises:
+        InvalidInputError: A bad seed or device, or an unknown hand model.
+        MANONotFoundError: ``config.hand_model`` is "mano" and no MANO file is found.
+        UnsafeFileError: The MANO file holds content that is refused.
+    """
+    cfg = get_preset() if config is None else config
+    if not isinstance(cfg, EasyHOIConfig):
+        raise InvalidInputError(f"config must be an EasyHOIConfig, got {type(cfg).__name__}")
+    if seed is not None:
+        cfg = with_overrides(cfg, {"optim.seed": seed})
+    if device not in DEVICES:
+        raise InvalidInputError(f"device must be one of {DEVICES}, got {device!r}")
+    if hand_model is None:
+        from easyhoi.hand import load_hand_model
+
+        hand_model = load_hand_model(cfg.hand_model, cfg.mano_dir, dtype=cfg.optim.torch_dtype)
+    return RunSettings(config=cfg, hand_model=hand_model, device=device)
