@@ -216,6 +216,7 @@ def main(argv=None) -> int:
     ap.add_argument("--procedural", action="store_true", help="the procedural kinds instead")
     ap.add_argument("--only", nargs="*", default=None, help="object names to run")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--jsonl", default=None, help="append each row as it is measured")
     ap.add_argument("--gt-amodal", action="store_true", help="the true amodal mask as input")
     args = ap.parse_args(argv)
     from easyhoi.synth.objects import OBJECT_KINDS, list_objects
@@ -228,6 +229,9 @@ def main(argv=None) -> int:
         for seed in args.seeds:
             r = run_scene(obj if args.procedural else str(obj), seed, args.size, args.gt_amodal)
             rows.append(r)
+            if args.jsonl:
+                with open(args.jsonl, "a") as fh:
+                    fh.write(json.dumps(r) + "\n")
             print(f"{r['object']:28s} s{seed} {r['shape']:12s} cd {r['cd']:.3f} "
                   f"box {r['box_cd']:.3f} sph {r['sphere_cd']:.3f} f10 {r['f10']:.3f} "
                   f"scale {r['scale_err']:.3f} placed {r['cd_placed']:.2f} "
