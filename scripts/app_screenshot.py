@@ -51,14 +51,15 @@ STANDIN_PLAUSIBILITY = {
 
 
 def standin_reconstruct(image_path, out_dir, config=None, *, seed=0, progress=None, say=None,
-                        provided=None):  # fmt: skip
+                        provided=None, prompts=None):  # fmt: skip
     """Write a small but real result folder for ``image_path`` (no optimization).
 
-    ``out_dir/<stem>/`` gets ``overlay.png`` (the built-in hand in a grasp pose drawn over the
-    photo), ``scene.glb`` (that hand and a box, metres), ``result.json`` (plausibility:
+    The result folder ``out_dir`` gets ``overlay.png`` (the built-in hand in a grasp pose drawn
+    over the photo), ``scene.glb`` (that hand and a box, metres), ``result.json`` (plausibility:
     :data:`STANDIN_PLAUSIBILITY` plus ``hand_mask_iou`` = the hand's share of the overlay's
-    pixels, and a camera facing the hand) and ``report.html``. Calls ``say`` once and
-    ``progress`` for three stages.
+    pixels, a camera facing the hand, and ``meta``: the ``prompts`` and a perception report
+    whose object mask has low confidence unless an object point was given) and
+    ``report.html``. Calls ``say`` once and ``progress`` for three stages.
     """
     import numpy as np
     import trimesh
@@ -99,7 +100,7 @@ def standin_reconstruct(image_path, out_dir, config=None, *, seed=0, progress=No
     covered = float((np.asarray(layer)[..., 3] > 0).mean())
     overlay = Image.alpha_composite(img, layer).convert("RGB")
 
-    folder = Path(out_dir) / Path(image_path).stem
+    folder = Path(out_dir)  # the result folder itself (see easyhoi.pipeline.reconstruct_photo)
     folder.mkdir(parents=True, exist_ok=True)
     overlay.save(folder / "overlay.png")
     scene = trimesh.Scene({"hand": hand_mesh, "object": box})
@@ -112,11 +113,48 @@ def standin_reconstruct(image_path, out_dir, config=None, *, seed=0, progress=No
            "R": [[1, 0, 0], [0, -1, 0], [0, 0, -1]],
            "t": [-float(centre[0]), float(centre[1]), float(hand_mesh.bounds.mean(0)[2]) + 0.4],
            "width": w, "height": h}  # fmt: skip
-    doc = {"plausibility": plaus, "seed": seed, "camera": cam}
+    pointed = prompts is not None and bool(prompts.object_points)
+    confidence = (
+        {"score": 0.9, "low": False, "reasons": []}
+        if pointed
+        else {"score": 0.3, "low": True, "reasons": ["stand-in: nobody pointed at the object"]}
+    )
+    meta = {"prompts": None if prompts is None else prompts.to_dict(),
+            "perception": {"hands_found": 1, "side": "right", "hand_index": 0,
+                           "confidence": {"object": confidence}}}  # fmt: skip
+    doc = {"plausibility": plaus, "seed": seed, "camera": cam, "meta": meta}
     (folder / "result.json").write_text(json.dumps(doc))
     (folder / "report.html").write_text("<!doctype html><title>stand-in</title><p>stand-in</p>")
     files = [folder / n for n in ("overlay.png", "scene.glb", "result.json", "report.html")]
     return Reconstruction(None, None, {}, files, time.perf_counter() - t0)
+
+
+def standin_segment(rgb, config, prompts):
+    """Masks for the demo's "Show mask" without a hand detector: discs around the points.
+
+    The object mask is a disc of radius 1/8 of the photo's shorter side around each object
+    point; the hand mask a disc twice as large around the hand point (or the photo's centre).
+    Without an object point there is no object (``NoObjectError``).
+    """
+    import numpy as np
+
+    from easyhoi.errors import NoObjectError
+
+    h, w = rgb.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    r = min(h, w) / 8
+
+    def disc(x, y, radius):
+        return (xx - x) ** 2 + (yy - y) ** 2 <= radius**2
+
+    if prompts is None or not prompts.object_points:
+        raise NoObjectError("stand-in: click on the object first")
+    obj = np.zeros((h, w), bool)
+    for x, y in prompts.object_points:
+        obj |= disc(x, y, r)
+    hx, hy = prompts.hand_point if prompts.hand_point is not None else (w / 2, h / 2)
+    hand = disc(hx, hy, 2 * r) & ~obj
+    return hand, obj, {"hands_found": 1, "hand_index": 0, "side": "right"}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -131,13 +169,18 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def start_demo(reconstruct_fn=None, preset: str = "fast", port: int | None = None):
-    """Serve the demo in a background thread; returns ``(app, url)``. Stop with ``app.close()``."""
+def start_demo(reconstruct_fn=None, preset: str = "fast", port: int | None = None,
+               segment_fn=None, examples=()):  # fmt: skip
+    """Serve the demo in a background thread; returns ``(app, url)``. Stop with ``app.close()``.
+
+    ``examples``: example photos offered on the page (none by default: rendering the synthetic
+    ones takes seconds).
+    """
     from easyhoi.app import launch
 
     port = port or free_port()
     app = launch("127.0.0.1", port, preset=preset, reconstruct_fn=reconstruct_fn, block=False,
-                 quiet=True, examples=[])  # fmt: skip
+                 quiet=True, examples=list(examples), segment_fn=segment_fn)  # fmt: skip
     return app, f"http://127.0.0.1:{port}/"
 
 

@@ -14,6 +14,12 @@ from easyhoi.errors import InvalidInputError, MissingDependencyError
 from easyhoi.perception.adapters import resolve_model_dir
 from easyhoi.perception.adapters.depth import DepthObjectReconstructor, relief_mesh
 from easyhoi.perception.adapters.diffusion import DiffusionInpainter
+from easyhoi.perception.adapters.grounded_sam import (
+    GroundedSamSegmenter,
+    box_distance,
+    choose_box,
+    grasp_centre,
+)
 from easyhoi.perception.adapters.sam import SamAmodalSegmenter, prompts_from_mask
 
 
@@ -38,18 +44,22 @@ def photo(shape=(60, 80), seed=0) -> np.ndarray:
         (SamAmodalSegmenter, "transformers", "sam"),
         (DepthObjectReconstructor, "transformers", "depth"),
         (DiffusionInpainter, "diffusers", "diffusion"),
+        (GroundedSamSegmenter, "transformers", "sam"),
     ],
 )
 def test_missing_dependency_names_the_extra(monkeypatch, tmp_path, cls, module, extra):
     monkeypatch.setitem(sys.modules, module, None)  # makes the import fail
+    folders = {"model_dir": tmp_path}
+    if cls is GroundedSamSegmenter:
+        folders = {"detector_dir": tmp_path, "sam_dir": tmp_path}
     with pytest.raises(MissingDependencyError, match=rf"easyhoi\[{extra}\]"):
-        cls(model_dir=tmp_path)
+        cls(**folders)
 
 
 def test_importing_adapters_imports_no_heavy_dependency():
     code = (
         "import sys, easyhoi.perception.adapters.sam, easyhoi.perception.adapters.depth, "
-        "easyhoi.perception.adapters.diffusion; "
+        "easyhoi.perception.adapters.diffusion, easyhoi.perception.adapters.grounded_sam; "
         "print(sorted(m for m in ('transformers', 'diffusers') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -163,6 +173,11 @@ def test_sam_adapter_mask_matches_image(sam_dir):
     np.testing.assert_array_equal(mask, again)
     with pytest.raises(InvalidInputError, match="box"):
         seg.segment(img, pts, (10, 10, 5, 20), vis)
+    # a box alone, points alone, neither
+    assert seg.predict(img, None, box).shape == (60, 80)
+    assert seg.predict(img, pts, None).dtype == bool
+    with pytest.raises(InvalidInputError, match="point prompts, a box, or both"):
+        seg.predict(img, np.zeros((0, 2)), None)
     with pytest.raises(InvalidInputError, match="image"):
         seg.segment(img, pts, box, vis[:10])
 
@@ -282,3 +297,231 @@ def test_diffusion_inpainter_fills_only_the_mask(inpaint_dir):
         inp.inpaint(img.astype(np.float32), m)
     with pytest.raises(InvalidInputError, match="model_index.json"):
         DiffusionInpainter(model_dir=inpaint_dir / "unet", steps=1)
+
+
+# ----------------------------------------------------------------------------------------------
+# grounded-sam: OWLv2 detector + SAM
+# ----------------------------------------------------------------------------------------------
+
+
+def hand_keypoints(u0=10.0, v0=30.0, size=20.0) -> np.ndarray:
+    """21 keypoints: wrist at the bottom, five fingers fanned out upwards, in a size^2 box."""
+    k = np.zeros((21, 2))
+    k[0] = (u0 + size / 2, v0 + size)
+    for f in range(5):
+        for j in range(4):
+            k[1 + 4 * f + j] = (u0 + size * f / 4, v0 + size * (0.75 - 0.25 * j))
+    return k
+
+
+def test_mask_confidences_name_the_weak_cues():
+    from easyhoi.perception.adapters.grounded_sam import mask_confidences
+
+    conf = mask_confidences(0.9, 0.3, 0.05)
+    assert conf["hand"].score == 0.9 and conf["hand"].reasons == () and not conf["hand"].low
+    assert conf["object"].low and conf["object"].reasons == (
+        "SAM predicts an IoU of 0.30",
+        "the detector found the object box with score 0.05 only",
+    )
+    assert set(mask_confidences(1.2, None)) == {"hand"}
+    assert mask_confidences(1.2, None)["hand"].score == 1.0
+
+
+def test_choose_box_prefers_the_box_at_the_grasp_over_a_higher_score_far_away():
+    k = hand_keypoints()  # grasp centre: mean of bases and tips
+    g = grasp_centre(k)
+    # bases of fingers 1-4 at x = 15..30, y = 45; the five tips at x = 10..30, y = 30
+    np.testing.assert_allclose(g, [(15 + 20 + 25 + 30 + 10 + 15 + 20 + 25 + 30) / 9,
+                                   (4 * 45 + 5 * 30) / 9])  # fmt: skip
+    assert box_distance(g, (0, 0, 100, 100)) == 0.0
+    assert box_distance((0.0, 0.0), (3, 4, 10, 10)) == 5.0
+    near = (15, 25, 40, 45)  # contains the grasp centre
+    far = (60, 5, 79, 20)  # 20+ px away, one hand size
+    boxes = np.array([far, near], float)
+    # rank = score * exp(-d / hand size): far 0.9 * exp(-d/20) against near 0.5
+    d = box_distance(g, far)
+    assert 0.9 * np.exp(-d / 20) < 0.5
+    assert choose_box(boxes, np.array([0.9, 0.5]), k, (80, 60)) == 1
+    assert choose_box(boxes, np.array([0.9, 0.5 * np.exp(-d / 20) * 0.9 / 0.5 * 0.99]), k,
+                      (80, 60)) == 0  # fmt: skip
+    # the whole photo is the scene, not a held object; nothing left -> None
+    assert choose_box(np.array([[0, 0, 80, 60]], float), np.array([0.99]), k, (80, 60)) is None
+    assert choose_box(np.zeros((0, 4)), np.zeros(0), k, (80, 60)) is None
+
+
+@pytest.fixture(scope="module")
+def owl_dir(tmp_path_factory):
+    tf = pytest.importorskip("transformers", reason="transformers not installed (extra 'sam')")
+    import torch
+
+    vocab = {"<|startoftext|>": 0, "<|endoftext|>": 1}
+    for c in "abcdefghijklmnopqrstuvwxyz":
+        vocab[c] = len(vocab)
+        vocab[c + "</w>"] = len(vocab)
+    tok = tf.CLIPTokenizer(vocab=vocab, merges=[])
+    tc = tf.Owlv2TextConfig(
+        vocab_size=len(vocab), hidden_size=16, intermediate_size=32, num_hidden_layers=1,
+        num_attention_heads=2, max_position_embeddings=64, bos_token_id=0, eos_token_id=1,
+        pad_token_id=1,
+    )  # fmt: skip
+    vc = tf.Owlv2VisionConfig(hidden_size=16, intermediate_size=32, num_hidden_layers=1,
+                              num_attention_heads=2, image_size=32, patch_size=8)  # fmt: skip
+    cfg = tf.Owlv2Config(text_config=tc.to_dict(), vision_config=vc.to_dict(), projection_dim=16)
+    torch.manual_seed(0)
+    folder = tmp_path_factory.mktemp("owlv2")
+    model = tf.Owlv2ForObjectDetection(cfg)
+    with torch.no_grad():  # random heads saturate: boxes of zero size, scores of 0
+        for layer in (model.box_head.dense2, model.class_head.logit_shift,
+                      model.class_head.logit_scale):  # fmt: skip
+            layer.weight.mul_(0.01)
+            layer.bias.zero_()
+    model.save_pretrained(folder)
+    ip = tf.Owlv2ImageProcessorPil(size={"height": 32, "width": 32})
+    tf.Owlv2Processor(image_processor=ip, tokenizer=tok).save_pretrained(folder)
+    return folder
+
+
+def test_grounded_sam_segments_hand_and_object(owl_dir, sam_dir):
+    from easyhoi.perception.base import HandDetection, create
+    from easyhoi.perception.prompts import Prompts
+
+    seg = create("segmenter", "grounded-sam", detector_dir=owl_dir, sam_dir=sam_dir,
+                 min_score=0.0)  # fmt: skip
+    img = photo()
+    hand = HandDetection(hand_keypoints(), None, "right", 0.9)
+    out = seg.segment(img, hand)
+    for m in (out.hand_mask, out.object_mask):
+        assert m.shape == (60, 80) and m.dtype == bool
+    assert not (out.hand_mask & out.object_mask).any()
+    boxes, scores = seg.last_detections
+    assert boxes.shape == (16, 4) and scores.shape == (16,)  # (32 / 8)^2 patches, all kept
+    assert np.all(np.diff(scores) <= 0) and np.all((0 <= scores) & (scores <= 1))
+    assert np.all(boxes[:, [0, 2]] <= 80) and np.all(boxes[:, [1, 3]] <= 60) and np.all(boxes >= 0)
+    assert out.meta["source"] == "detector" and out.has_object == bool(out.object_mask.any())
+    assert out.meta["object_box"] == pytest.approx(
+        boxes[choose_box(boxes, scores, hand.keypoints2d, (80, 60))].tolist()
+    )
+    assert seg.segment(img, hand).object_mask.tolist() == out.object_mask.tolist()  # same again
+    # confidence: SAM's predicted IoU of each mask
+    assert out.confidence["hand"].score == pytest.approx(np.clip(out.meta["hand_sam_iou"], 0, 1))
+    assert out.confidence["object"].score == pytest.approx(
+        np.clip(out.meta["object_sam_iou"], 0, 1)
+    )
+    # prompts replace the detector: a box, or points alone
+    seg.last_detections = None
+    boxed = seg.segment(img, hand, prompts=Prompts(object_box=(40.0, 10.0, 75.0, 50.0)))
+    assert seg.last_detections is None and boxed.meta["source"] == "prompts"
+    assert boxed.meta["object_box"] == [40.0, 10.0, 75.0, 50.0]
+    pointed = seg.segment(img, hand, prompts=Prompts(object_points=((60.0, 30.0),)))
+    assert seg.last_detections is None and pointed.meta["object_box"] is None
+    assert pointed.object_mask.shape == (60, 80)
+    with pytest.raises(InvalidInputError, match="21 hand keypoints"):
+        seg.segment(img, HandDetection(np.zeros((0, 2)), None, "right", 1.0))
+
+
+@pytest.fixture(scope="module")
+def dino_dir(tmp_path_factory):
+    tf = pytest.importorskip("transformers", reason="transformers not installed (extra 'sam')")
+    import torch
+
+    folder = tmp_path_factory.mktemp("grounding-dino")
+    words = ["[PAD]", "[UNK]", "[CLS]", "[SEP]", "[MASK]", ".", "an", "object", "held", "by", "a",
+             "hand"]  # fmt: skip
+    (folder / "vocab.txt").write_text("\n".join(words) + "\n")
+    tok = tf.BertTokenizer(vocab_file=str(folder / "vocab.txt"))
+    backbone = tf.SwinConfig(
+        window_size=7, embed_dim=8, depths=[1, 1, 1, 1], num_heads=[1, 1, 1, 1], image_size=64,
+        out_features=["stage2", "stage3", "stage4"], out_indices=[2, 3, 4],
+    )  # fmt: skip
+    text = {"hidden_size": 8, "num_hidden_layers": 1, "num_attention_heads": 2,
+            "intermediate_size": 8, "max_position_embeddings": 32, "model_type": "bert",
+            "vocab_size": len(words)}  # fmt: skip
+    cfg = tf.GroundingDinoConfig(
+        backbone_config=backbone, text_config=text, d_model=32, encoder_layers=1,
+        decoder_layers=2, encoder_attention_heads=2, decoder_attention_heads=2,
+        encoder_ffn_dim=16, decoder_ffn_dim=16, num_queries=5, num_feature_levels=4,
+        encoder_n_points=2, decoder_n_points=2, max_text_len=32,
+    )  # fmt: skip
+    torch.manual_seed(0)
+    tf.GroundingDinoForObjectDetection(cfg).save_pretrained(folder)
+    ip = tf.GroundingDinoImageProcessor(size={"shortest_edge": 64, "longest_edge": 96})
+    tf.GroundingDinoProcessor(image_processor=ip, tokenizer=tok).save_pretrained(folder)
+    return folder
+
+
+def test_grounded_sam_reads_grounding_dino(dino_dir, sam_dir):
+    from easyhoi.perception.base import HandDetection
+
+    seg = GroundedSamSegmenter(detector_dir=dino_dir, sam_dir=sam_dir, min_score=0.0)
+    assert seg.kind == "grounding-dino"
+    img = photo()
+    boxes, scores = seg.detect(img)
+    assert boxes.shape == (5, 4) and scores.shape == (5,)  # one per query
+    assert np.all((0 <= scores) & (scores <= 1)) and np.all(np.diff(scores) <= 0)
+    assert np.all(boxes[:, [0, 2]] <= 80) and np.all(boxes[:, [1, 3]] <= 60)
+    out = seg.segment(img, HandDetection(hand_keypoints(), None, "right", 0.9))
+    assert out.hand_mask.shape == out.object_mask.shape == (60, 80)
+    assert out.object_mask.dtype == bool and not (out.hand_mask & out.object_mask).any()
+
+
+def test_grounded_sam_box_pixels_follow_grounding_dino_fractions(dino_dir, sam_dir):
+    import torch
+
+    seg = GroundedSamSegmenter(detector_dir=dino_dir, sam_dir=sam_dir, min_score=0.3)
+
+    class Fixed(torch.nn.Module):
+        def forward(self, **inputs):
+            inf = float("-inf")
+            logits = torch.tensor([[[1.0, 3.0, inf], [0.0, -1.0, inf]]])  # best token per box
+            boxes = torch.tensor([[[0.5, 0.5, 0.5, 0.5], [0.25, 0.25, 0.1, 0.2]]])
+            return type("Out", (), {"logits": logits, "pred_boxes": boxes})()
+
+    seg.detector = Fixed()
+    boxes, scores = seg.detect(photo((60, 80)))
+    np.testing.assert_allclose(scores, [1 / (1 + np.exp(-3)), 0.5])
+    # fractions of the 80x60 photo: (40, 30, 40, 30) -> (20, 15, 60, 45); (20, 15, 8, 12)
+    np.testing.assert_allclose(boxes, [[20, 15, 60, 45], [16, 9, 24, 21]])
+
+
+def test_grounded_sam_box_pixels_follow_owlv2_square_padding(owl_dir, sam_dir):
+    import torch
+
+    seg = GroundedSamSegmenter(detector_dir=owl_dir, sam_dir=sam_dir, min_score=0.3)
+
+    class Fixed(torch.nn.Module):
+        def forward(self, **inputs):
+            logits = torch.tensor([[[2.0], [-2.0], [0.0]]])  # sigmoid: 0.88, 0.12, 0.5
+            boxes = torch.tensor([[[0.5, 0.25, 0.5, 0.25], [0.1, 0.1, 0.1, 0.1],
+                                   [0.9, 0.9, 0.4, 0.4]]])  # fmt: skip
+            return type("Out", (), {"logits": logits, "pred_boxes": boxes})()
+
+    seg.detector = Fixed()
+    boxes, scores = seg.detect(photo((60, 80)))  # padded to an 80x80 square
+    np.testing.assert_allclose(scores, [1 / (1 + np.exp(-2)), 0.5])
+    # (cx, cy, w, h) * 80 = (40, 20, 40, 20) -> (20, 10, 60, 30); the second clipped to 80x60
+    np.testing.assert_allclose(boxes, [[20, 10, 60, 30], [56, 56, 80, 60]])
+
+
+def test_grounded_sam_folders_are_checked(owl_dir, sam_dir, tmp_path):
+    with pytest.raises(InvalidInputError, match="detector model folder not found"):
+        GroundedSamSegmenter(detector_dir=tmp_path / "missing", sam_dir=sam_dir)
+    with pytest.raises(InvalidInputError, match="SAM adapter needs model_dir"):
+        GroundedSamSegmenter(detector_dir=owl_dir, sam_dir=None)
+    refused = "holds a 'sam' model; the grounded-sam segmenter reads owlv2, grounding-dino"
+    with pytest.raises(InvalidInputError, match=refused):
+        GroundedSamSegmenter(detector_dir=sam_dir, sam_dir=sam_dir)
+
+
+def test_grounded_sam_needs_both_folders_in_the_chain(tmp_path, capsys):
+    from easyhoi.cli import main
+
+    img = tmp_path / "p.png"
+    cv2.imwrite(str(img), photo((64, 64)))
+    rc = main(["reconstruct", str(img), "--out", str(tmp_path / "o"), "--segmenter",
+               "grounded-sam", "--sam-dir", str(tmp_path)])  # fmt: skip
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "segmenter backend 'grounded-sam' needs a local model folder: pass --detector-dir" in err
+    rc = main(["reconstruct", str(img), "--out", str(tmp_path / "o"), "--detector-dir",
+               str(tmp_path / "nope")])  # fmt: skip
+    assert rc == 2 and "needs a local model folder: pass --sam-dir" in capsys.readouterr().err

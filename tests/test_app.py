@@ -250,9 +250,12 @@ def test_page_serves_on_localhost_and_runs_through_the_api(tmp_path):
         assert b"Example photos" in config and b"example-photo.png" in config
         client = Client(f"http://127.0.0.1:{port}/", verbose=False, download_files=str(tmp_path))
         src = photo(tmp_path / "api.png")
-        overlay, glb, metrics, downloads, error = client.predict(
+        overlay, glb, metrics, downloads, error, warnings = client.predict(
             handle_file(str(src)), "fast", 2, api_name="/reconstruct"
         )
+        # nobody clicked: the stand-in's object mask has low confidence, and the page says so
+        assert "Low confidence in the object mask (score 0.30" in str(warnings)
+        assert "click on the held object in the photo and run again" in str(warnings)
         assert Image.open(overlay).size == (160, 120)
         assert Path(glb["value"] if isinstance(glb, dict) else glb).read_bytes()[:4] == b"glTF"
         assert "| seed | 2 |" in metrics

@@ -1,4 +1,5 @@
-"""The web demo in headless Chromium: upload, Run, overlay, metrics, GLB download, errors.
+"""The web demo in headless Chromium: upload, Run, overlay, metrics, GLB download, errors, and
+click-to-prompt (a click on the photo adds a point, Show mask previews the mask, Run uses it).
 
 Uses the driver and the stand-in reconstruction of ``scripts/app_screenshot.py``; the server
 runs on 127.0.0.1 at a free port in a background thread. Slow (a browser start and a page
@@ -41,6 +42,10 @@ if _missing():
     pytest.skip(_missing(), allow_module_level=True)
 
 
+#: prompts each reconstruction of the served page got (None: no click)
+PROMPTS_SEEN: list = []
+
+
 def slowed_standin(image_path, out_dir, config, *, progress=None, **kw):
     """The stand-in, with 0.1 s per progress report so that the page can show them."""
 
@@ -48,12 +53,13 @@ def slowed_standin(image_path, out_dir, config, *, progress=None, **kw):
         time.sleep(0.1)
         progress(*args)
 
+    PROMPTS_SEEN.append(kw.get("prompts"))
     return standin.standin_reconstruct(image_path, out_dir, config, progress=slow, **kw)
 
 
 @pytest.fixture(scope="module")
 def server():
-    app, url = standin.start_demo(slowed_standin)
+    app, url = standin.start_demo(slowed_standin, segment_fn=standin.standin_segment)
     yield url
     app.close()
 
@@ -135,3 +141,136 @@ def test_the_page_contacts_no_other_host(server, driver):
     urls = standin.requested_urls(driver)
     assert any(u.startswith(server) for u in urls)
     assert standin.foreign_urls(urls) == []
+
+
+def _click_on_image(driver, img, fx: float, fy: float) -> tuple[float, float]:
+    """Click at the fractions (fx, fy) of the shown image; returns the natural pixel clicked."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    rect = driver.execute_script(
+        "const r = arguments[0].getBoundingClientRect();"
+        "return [r.width, r.height, arguments[0].naturalWidth, arguments[0].naturalHeight];",
+        img,
+    )
+    w, h, nw, nh = rect
+    # the picture is fitted into the element ("object-fit: contain"): scaled, centred
+    scale = min(w / nw, h / nh)
+    ox, oy = (w - nw * scale) / 2, (h - nh * scale) / 2
+    dx = round(ox + fx * nw * scale - w / 2)  # offsets from the element's centre
+    dy = round(oy + fy * nh * scale - h / 2)
+    ActionChains(driver).move_to_element_with_offset(img, dx, dy).click().perform()
+    return (w / 2 + dx - ox) / scale, (h / 2 + dy - oy) / scale
+
+
+def test_click_on_the_photo_adds_a_point_previews_the_mask_and_runs_with_it(server, driver,
+                                                                           tmp_path):  # fmt: skip
+    import re
+
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    src = photo(tmp_path / "click.png", size=(640, 480))  # shown as a 512x384 thumbnail
+    wait = WebDriverWait(driver, 60)
+    driver.get(server)
+    upload = wait.until(
+        ec.presence_of_element_located((By.CSS_SELECTOR, "#photo input[type=file]"))
+    )
+    upload.send_keys(str(src))
+    img = wait.until(ec.visibility_of_element_located((By.CSS_SELECTOR, "#preview img")))
+    first_src = img.get_attribute("src")
+    nx, ny = _click_on_image(driver, img, 0.3, 0.6)
+
+    def text(css):
+        return driver.find_element(By.CSS_SELECTOR, css).text
+
+    wait.until(lambda d: "object point: (" in text("#prompt_text"))
+    x, y = (float(v) for v in re.search(r"object point: \((\d+), (\d+)\)",
+                                         text("#prompt_text")).groups())  # fmt: skip
+    # thumbnail pixel -> photo pixel: x 640/512, y 480/384 (1.25 both)
+    assert abs(x - (int(nx) + 0.5) * 1.25) <= 1.5 and abs(y - (int(ny) + 0.5) * 1.25) <= 1.5
+    # the point is drawn on the photo shown: a green disc at the clicked pixel
+    wait.until(lambda d: d.find_element(By.CSS_SELECTOR, "#preview img").get_attribute("src")
+               != first_src)  # fmt: skip
+    shown = driver.find_element(By.CSS_SELECTOR, "#preview img").get_attribute("src")
+    drawn = np.asarray(Image.open(io.BytesIO(_get(shown))).convert("RGB"))
+    assert drawn.shape == (384, 512, 3)
+    # (the page may get the picture lossily encoded: a few levels off)
+    assert np.abs(drawn[int(ny), int(nx)].astype(int) - (40, 220, 90)).max() <= 4
+
+    # Show mask: the stand-in's disc around the point, tinted green on the thumbnail
+    driver.find_element(By.CSS_SELECTOR, "#show_mask").click()
+    mask_img = wait.until(
+        ec.presence_of_element_located((By.CSS_SELECTOR, "#mask_preview img[src]"))
+    )
+    wait.until(lambda d: "Object mask:" in text("#mask_text"))
+    share = float(re.search(r"Object mask: ([\d.]+)%", text("#mask_text")).group(1))
+    assert share == pytest.approx(100 * np.pi * 60**2 / (640 * 480), abs=0.3)  # r = 480/8
+    masked = np.asarray(Image.open(io.BytesIO(_get(mask_img.get_attribute("src")))).convert("RGB"))
+    near = masked[int(ny), int(nx) + 30]  # 30 px < 48 px radius on the thumbnail
+    assert near[1] > near[0] + 40 and near[1] > near[2] + 40
+
+    # the hand mode sets the hand point
+    driver.find_element(By.XPATH, "//*[@id='click_mode']//label[contains(., 'hand point')]").click()
+    img = driver.find_element(By.CSS_SELECTOR, "#preview img")
+    _click_on_image(driver, img, 0.8, 0.2)
+    wait.until(lambda d: "hand point: (" in text("#prompt_text"))
+    assert "object point: (" in text("#prompt_text")
+
+    # Run: the reconstruction gets the points; the pointed object is not a low-confidence one
+    PROMPTS_SEEN.clear()
+    driver.find_element(By.CSS_SELECTOR, "#run").click()
+    WebDriverWait(driver, 90).until(
+        ec.presence_of_element_located((By.CSS_SELECTOR, "#overlay img[src]"))
+    )
+    (prompts,) = PROMPTS_SEEN
+    assert np.allclose(prompts.object_points, [(x, y)], atol=0.5)  # the text shows them rounded
+    assert prompts.hand_point is not None and prompts.hand_point[0] > 400
+    assert not any(e.is_displayed() for e in driver.find_elements(By.CSS_SELECTOR, "#warnings"))
+
+    # Clear points: back to none; a run without points warns about the object mask
+    driver.find_element(By.CSS_SELECTOR, "#clear_points").click()
+    wait.until(lambda d: "Click on the held object" in text("#prompt_text"))
+    assert text("#mask_text") == "" and not driver.find_elements(
+        By.CSS_SELECTOR, "#mask_preview img[src]"
+    )
+    driver.find_element(By.CSS_SELECTOR, "#run").click()
+    warn = WebDriverWait(driver, 90).until(
+        ec.visibility_of_element_located((By.CSS_SELECTOR, "#warnings"))
+    )
+    assert "Low confidence in the object mask" in warn.text
+    assert "click on the held object in the photo" in warn.text
+    assert PROMPTS_SEEN[-1] is None
+    driver.save_screenshot(str(tmp_path / "page.png"))
+
+
+def test_an_example_photo_fills_the_preview_and_runs(driver, tmp_path_factory):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    from easyhoi.app_request import synthetic_examples
+
+    (example,) = synthetic_examples(tmp_path_factory.mktemp("examples"), seeds=(1,))
+    app, url = standin.start_demo(slowed_standin, examples=[example])
+    try:
+        wait = WebDriverWait(driver, 60)
+        driver.get(url)
+        button = wait.until(ec.element_to_be_clickable((By.CSS_SELECTOR, "button.gallery-item")))
+        assert button.text == "synthetic-1.png"
+        button.click()
+        img = wait.until(ec.visibility_of_element_located((By.CSS_SELECTOR, "#preview img")))
+        shown = np.asarray(Image.open(io.BytesIO(_get(img.get_attribute("src")))).convert("RGB"))
+        photo_rgb = np.asarray(Image.open(example).convert("RGB"))
+        assert shown.shape == photo_rgb.shape  # 256 px: shown as it is
+        assert np.abs(shown.astype(int) - photo_rgb).mean() < 3  # (lossy on the page)
+        PROMPTS_SEEN.clear()
+        driver.find_element(By.CSS_SELECTOR, "#run").click()
+        WebDriverWait(driver, 90).until(
+            ec.presence_of_element_located((By.CSS_SELECTOR, "#overlay img[src]"))
+        )
+        assert PROMPTS_SEEN == [None]
+        assert not any(e.is_displayed() and e.text for e in
+                       driver.find_elements(By.CSS_SELECTOR, "#error"))  # fmt: skip
+    finally:
+        app.close()

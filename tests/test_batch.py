@@ -397,19 +397,26 @@ def test_cli_batch_exit_8_when_photos_fail(photos, tmp_path, capsys):
     assert [r["status"] for r in read_manifest(out / MANIFEST_JSONL)] == ["failed", "failed"]
 
 
-def _fake_pipeline(monkeypatch):
-    """Stand-ins for the reconstruction and the result writer (fast, no optimizer needed)."""
+def _fake_pipeline(monkeypatch, perception=None, prompts_seen=None):
+    """Stand-ins for the reconstruction and the result writer (fast, no optimizer needed).
+
+    ``perception`` is the perception report every photo gets; ``prompts_seen`` (a dict) records
+    the prompts and the strict flag each photo got.
+    """
     import easyhoi.pipeline as pipeline
     from easyhoi.io.image import load_image
 
     seen = {}
 
-    def reconstruct_photo(image, folder, settings, seed=None, **kw):
+    def reconstruct_photo(image, folder, settings, seed=None, prompts=None, strict=False, **kw):
         load_image(image)
         seen[Path(image).name] = (seed, settings.config.hand_model)
+        if prompts_seen is not None:
+            prompts_seen[Path(image).name] = (prompts, strict)
         Path(folder).mkdir(parents=True)
         (Path(folder) / "result.json").write_text(json.dumps({"result": "R"}))
-        return SimpleNamespace(files=[Path(folder) / "result.json"], seconds=0.01)
+        return SimpleNamespace(files=[Path(folder) / "result.json"], seconds=0.01,
+                               perception=perception or {})  # fmt: skip
 
     monkeypatch.setattr(pipeline, "reconstruct_photo", reconstruct_photo)
     return seen

@@ -23,8 +23,8 @@ def test_adapter_gets_its_model_folder(monkeypatch, tmp_path):
     chain._backend(pc, "object", "depth")
     assert seen == {"role": "object", "name": "depth", "model_dir": str(tmp_path)}
     seen.clear()
-    chain._backend(pc, "segmenter", "classical")
-    assert seen == {"role": "segmenter", "name": "classical"}
+    chain._backend(pc, "segmenter", "classical", 7)
+    assert seen == {"role": "segmenter", "name": "classical", "seed": 7}  # it takes a seed
 
 
 def test_cli_model_dir_flags_select_the_adapters(tmp_path):

@@ -178,6 +178,17 @@ def test_reference_agrees_with_sam_mask(key, shared_data):
     assert mask_iou(held_object_mask(ref), visible_sam) >= 0.75
 
 
+def test_every_development_photo_has_a_reference(shared_data):
+    photos = [
+        f"{folder}__{p.stem}"
+        for folder in ("photos-dev", "images")
+        for p in sorted((shared_data / folder).iterdir())
+        if p.suffix.lower() in (".jpg", ".png") and not p.stem.endswith("_mask")
+    ]
+    assert len(photos) == 39
+    assert sorted(photos) == KEYS
+
+
 def test_load_refs_matches_keys():
     refs = load_refs()
     assert [r.key for r in refs] == KEYS

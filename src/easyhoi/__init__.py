@@ -2,9 +2,11 @@
 
 The small public API (heavier names are imported on first use)::
 
-    from easyhoi import reconstruct_photo, optimize, HOIInput, HOIResult, get_preset
-    rec = reconstruct_photo("photo.jpg", "results/")      # photo -> result folder
-    result = optimize(hoi_input, get_preset("fast"))      # HOIInput -> HOIResult
+    from easyhoi import reconstruct_photo, resolve_run, optimize, get_preset
+    rec = reconstruct_photo("photo.jpg", "results/photo")  # photo -> result folder
+    run = resolve_run(get_preset("fast"), seed=3)          # config + hand model + seed, once
+    rec = reconstruct_photo("photo.jpg", "results/photo", run)
+    result = optimize(hoi_input, run.config.optim, hand_model=run.hand_model)
 """
 
 from easyhoi.errors import (
@@ -24,6 +26,9 @@ _LAZY = {
     "HOIResult": ("easyhoi.hoi", "HOIResult"),
     "get_preset": ("easyhoi.config", "get_preset"),
     "EasyHOIConfig": ("easyhoi.config", "EasyHOIConfig"),
+    "RunSettings": ("easyhoi.settings", "RunSettings"),
+    "resolve_run": ("easyhoi.settings", "resolve_run"),
+    "write_result_folder": ("easyhoi.result_folder", "write_result_folder"),
     "load_hand_model": ("easyhoi.hand", "load_hand_model"),
     "save_hoi_input": ("easyhoi.io.hoi_io", "save_hoi_input"),
     "load_hoi_input": ("easyhoi.io.hoi_io", "load_hoi_input"),

@@ -1,425 +1,42 @@
 """Web demo: upload a photo, get the hand + object overlay, a 3D view, metrics and downloads.
 
-The request logic (:func:`handle_request`) is plain Python and does not import gradio, so it can
-be tested and reused without the ``[demo]`` extra; :func:`build_app` wraps it in a gradio page
-and :func:`launch` serves that page on this machine only (``127.0.0.1``) unless told otherwise.
+:func:`build_app` wraps the request logic of :mod:`easyhoi.app_request` (plain Python, no
+gradio) in a gradio page and :func:`launch` serves that page on this machine only
+(``127.0.0.1``) unless told otherwise.
 
-Every request works in its own temporary folder (the upload is copied in, the reconstruction
-writes its result folder there, a zip of that folder is made for download); only the newest
-``keep_runs`` request folders are kept. Uploads are limited in size and must decode as an image
-(checked by content with :func:`easyhoi.io.image.load_image`, not by the file extension).
-Failures reach the page as one readable sentence; tracebacks go to the server log only.
-
-The reconstruction is injectable: ``reconstruct_fn(image_path, folder, config, *, seed,
-progress, say)`` with the signature of :func:`easyhoi.pipeline.reconstruct_photo` (the
-default), returning an object whose ``files`` lists what it wrote; the page needs
-``overlay.png``, ``scene.glb`` and ``result.json`` among them (see
-:mod:`easyhoi.result_folder`).
+Click-to-prompt (:mod:`easyhoi.app_prompts`): a click on the shown photo adds a point on the held
+object (or, in the "hand point" mode, marks the holding hand); the points are drawn on the photo,
+"Show mask" segments the photo with them and shows the masks, and Run uses them.
 """
 
 from __future__ import annotations
 
-import json
-import logging
-import math
 import os
-import re
-import shutil
 import tempfile
-import time
-import zipfile
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 
-from easyhoi.errors import (
-    BackendError,
-    EasyHOIError,
-    InvalidInputError,
-    MissingDependencyError,
-    NoHandError,
-    NoObjectError,
-    OptimizationError,
+from easyhoi.app_request import (
+    KEEP_RUNS,
+    MAX_SEED,
+    MAX_UPLOAD_MB,
+    DemoResult,
+    check_upload,
+    handle_request,
+    metrics_markdown,
+    synthetic_examples,
 )
+from easyhoi.errors import InvalidInputError
 
-logger = logging.getLogger(__name__)
-
-__all__ = ["DemoResult", "build_app", "handle_request", "launch", "metrics_markdown"]
-
-#: Default upload limit in megabytes.
-MAX_UPLOAD_MB = 20
-#: Request folders kept on disk (older ones are deleted when a new request starts).
-KEEP_RUNS = 16
-#: Largest accepted seed (numpy's seed range).
-MAX_SEED = 2**32 - 1
-
-#: ``(description, fraction in [0, 1] or None) -> None``: progress as shown on the page.
-Progress = Callable[[str | None, float | None], None]
-
-_TITLES = {
-    NoHandError: "No hand was found in the photo",
-    NoObjectError: "No held object was found in the photo",
-    OptimizationError: "The reconstruction did not converge",
-    BackendError: "A perception step failed",
-    MissingDependencyError: "A dependency is missing on the server",
-    InvalidInputError: "The photo cannot be used",
-}
-
-
-@dataclass(frozen=True)
-class DemoResult:
-    """What one request produced.
-
-    Attributes:
-        ok: True when the reconstruction succeeded.
-        error: one readable sentence when ``ok`` is False (never a traceback), else "".
-        overlay: overlay.png of the result folder.
-        glb: scene.glb (hand, object and camera, metres).
-        view_glb: a copy of scene.glb in the photo camera's frame for the 3D viewer, or None
-            when it could not be made (the viewer then shows ``glb``).
-        camera_position: ``(alpha, beta, radius)`` of the viewer's first view (the photo's
-            viewpoint), or None; see :mod:`easyhoi.viz.viewer`.
-        metrics: plausibility metrics and run facts (JSON-ready).
-        metrics_text: ``metrics`` as a Markdown table.
-        downloads: files offered for download: the zipped result folder first, then scene.glb
-            and report.html when present.
-        folder: the result folder.
-        seconds: wall time of the request.
-    """
-
-    ok: bool
-    error: str = ""
-    overlay: Path | None = None
-    glb: Path | None = None
-    view_glb: Path | None = None
-    camera_position: tuple[float, float, float] | None = None
-    metrics: dict = field(default_factory=dict)
-    metrics_text: str = ""
-    downloads: tuple[Path, ...] = ()
-    folder: Path | None = None
-    seconds: float = 0.0
-
-
-# ----------------------------------------------------------------------------------------------
-# request handling (no gradio)
-# ----------------------------------------------------------------------------------------------
-
-
-def _default_reconstruct(*args, **kwargs):
-    from easyhoi.pipeline import reconstruct_photo
-
-    return reconstruct_photo(*args, **kwargs)
-
-
-def _safe_stem(name: str) -> str:
-    """A file stem safe for folder and zip names (letters, digits, ``-`` and ``_``)."""
-    stem = re.sub(r"[^A-Za-z0-9_-]+", "_", Path(str(name)).stem).strip("_")[:60]
-    return stem or "photo"
-
-
-def _fail(message: str, t0: float) -> DemoResult:
-    return DemoResult(ok=False, error=message, seconds=time.perf_counter() - t0)
-
-
-def _readable(exc: BaseException, replace: dict[str, str]) -> str:
-    """One sentence for the page: a title for the error class plus its message, paths hidden."""
-    msg = str(exc).strip() or type(exc).__name__
-    for old, new in sorted(replace.items(), key=lambda kv: -len(kv[0])):
-        if old:
-            msg = msg.replace(old, new)
-    msg = msg.splitlines()[0] if msg else msg
-    if isinstance(exc, EasyHOIError):
-        title = next((t for cls, t in _TITLES.items() if isinstance(exc, cls)), "Error")
-        return f"{title}: {msg}"
-    return (
-        f"Internal error ({type(exc).__name__}: {msg}). This is a bug; the server log has the "
-        "details."
-    )
-
-
-def _prune(work_root: Path, keep: int) -> None:
-    runs = sorted(
-        (p for p in work_root.glob("run-*") if p.is_dir()), key=lambda p: p.stat().st_mtime
-    )
-    for old in runs[: max(0, len(runs) - keep)]:
-        shutil.rmtree(old, ignore_errors=True)
-
-
-def _zip_folder(folder: Path, dest: Path) -> Path:
-    tmp = dest.with_name(dest.name + ".part")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for f in sorted(folder.rglob("*")):
-            if f.is_file():
-                zf.write(f, arcname=f"{folder.name}/{f.relative_to(folder).as_posix()}")
-    tmp.replace(dest)
-    return dest
-
-
-def _label(key: str) -> tuple[str, str]:
-    """``penetration_depth_cm`` -> ("penetration depth", "cm")."""
-    units = {"cm3": "cm³", "cm": "cm", "m": "m", "mm": "mm", "s": "s", "deg": "°"}
-    parts = key.split("_")
-    unit = ""
-    if len(parts) > 1 and parts[-1] in units:
-        unit = units[parts.pop()]
-    text = " ".join(parts).replace("iou", "IoU")
-    return text, unit
-
-
-def _fmt(v) -> str:
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    if v is None:
-        return "n/a"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        return "n/a" if not math.isfinite(v) else f"{v:.3g}"
-    return str(v)
-
-
-def metrics_markdown(metrics: dict) -> str:
-    """A Markdown table of :attr:`DemoResult.metrics` (plausibility rows, then run facts)."""
-    rows = ["| metric | value |", "|---|---|"]
-    for key, value in metrics.get("plausibility", {}).items():
-        text, unit = _label(key)
-        shown = _fmt(value)
-        rows.append(f"| {text} | {shown}{' ' + unit if unit and shown != 'n/a' else ''} |")
-    for key in ("preset", "seed", "seconds"):
-        if key in metrics:
-            value = metrics[key]
-            shown = f"{value:.1f} s" if key == "seconds" else _fmt(value)
-            rows.append(f"| {'run time' if key == 'seconds' else key} | {shown} |")
-    return "\n".join(rows)
-
-
-def _read_metrics(result_json: Path | None, rec) -> dict:
-    plaus: dict = {}
-    if result_json is not None:
-        try:
-            data = json.loads(result_json.read_text(encoding="utf-8"))
-            plaus = dict(data.get("plausibility") or {})
-        except (OSError, ValueError) as exc:
-            logger.warning("cannot read %s: %s", result_json, exc)
-    if not plaus:
-        plaus = dict(getattr(getattr(rec, "result", None), "plausibility", None) or {})
-    return {"plausibility": plaus}
-
-
-def _photo_view(files: dict, dest: Path):
-    """(view.glb path, (alpha, beta, radius)) seen from the photo's camera, or (None, None)."""
-    from easyhoi.io.atomic import atomic_write_bytes
-    from easyhoi.viz.viewer import photo_view_glb
-
-    try:
-        cam = json.loads(files["result.json"].read_text(encoding="utf-8"))["camera"]
-        data, view = photo_view_glb(files["scene.glb"], cam["R"], cam["t"], cam.get("K"),
-                                    cam.get("height"))  # fmt: skip
-        atomic_write_bytes(dest, data)
-    except (KeyError, TypeError, ValueError, OSError, EasyHOIError) as exc:
-        logger.warning("3D view from the photo's camera unavailable: %s", exc)
-        return None, None
-    return dest, view
-
-
-def handle_request(
-    image_path: str | Path | None,
-    preset: str = "fast",
-    seed: int | float | str | None = 0,
-    *,
-    work_root: str | Path,
-    reconstruct_fn: Callable | None = None,
-    max_upload_mb: float = MAX_UPLOAD_MB,
-    keep_runs: int = KEEP_RUNS,
-    progress: Progress | None = None,
-    display_name: str | None = None,
-) -> DemoResult:
-    """Run one demo request: validate the upload, reconstruct, collect the outputs.
-
-    Parameters
-    ----------
-    image_path : path or None
-        The uploaded file (None: nothing uploaded).
-    preset : str
-        Configuration preset (:func:`easyhoi.config.get_preset`).
-    seed : int
-        Random seed (0 <= seed < 2**32); same photo + preset + seed -> same result.
-    work_root : path
-        Folder under which this request gets its own ``run-*`` folder.
-    reconstruct_fn : callable
-        ``(image_path, out_dir, config, *, seed, progress, say) -> object with .files``;
-        default :func:`easyhoi.pipeline.reconstruct_photo`.
-    max_upload_mb : float
-        Uploads larger than this are refused before decoding.
-    keep_runs : int
-        How many request folders to keep under ``work_root``.
-    progress : callable
-        ``(description, fraction or None)``, fed from the pipeline's callbacks.
-    display_name : str
-        Name of the upload as the user knows it (default: the file's name).
-
-    Returns
-    -------
-    DemoResult
-        ``ok`` False with a readable ``error`` for bad input or a failed reconstruction; this
-        function does not raise for those.
-    """
-    from easyhoi.config import PRESETS, get_preset
-    from easyhoi.io.image import load_image
-
-    t0 = time.perf_counter()
-    if image_path is None or str(image_path) == "":
-        return _fail("Please upload a photo (JPEG, PNG, WebP...) first.", t0)
-    src = Path(image_path)
-    shown = display_name or src.name
-    try:
-        size = src.stat().st_size
-    except OSError:
-        return _fail(f"The upload '{shown}' could not be read; please upload it again.", t0)
-    limit = float(max_upload_mb) * 1024 * 1024
-    if size > limit:
-        return _fail(
-            f"The photo '{shown}' is {size / 2**20:.1f} MB; the limit is {max_upload_mb:g} MB. "
-            "Please upload a smaller file.",
-            t0,
-        )
-    if preset not in PRESETS:
-        return _fail(f"Unknown preset '{preset}'; choose one of {', '.join(sorted(PRESETS))}.", t0)
-    try:
-        seed_f = float(seed if seed is not None else 0)
-    except (TypeError, ValueError):
-        return _fail(f"The seed must be a whole number, got '{seed}'.", t0)
-    if not seed_f.is_integer() or not 0 <= seed_f <= MAX_SEED:
-        return _fail(f"The seed must be a whole number from 0 to {MAX_SEED}, got '{seed}'.", t0)
-    seed_i = int(seed_f)
-
-    try:
-        image = load_image(src)
-    except InvalidInputError as exc:
-        return _fail(_readable(exc, {str(src): f"'{shown}'"}), t0)
-
-    work_root = Path(work_root)
-    work_root.mkdir(parents=True, exist_ok=True)
-    _prune(work_root, max(0, keep_runs - 1))
-    run = Path(tempfile.mkdtemp(prefix="run-", dir=work_root))
-    stem = _safe_stem(shown)
-    suffix = {"JPEG": ".jpg", "PNG": ".png", "WEBP": ".webp"}.get(image.source_format, "")
-    local = run / "input" / f"{stem}{suffix or src.suffix.lower()[:6]}"
-    local.parent.mkdir()
-    shutil.copyfile(src, local)
-    out_dir = run / stem
-
-    def on_progress(stage: str, it: int, total: int, losses: dict) -> None:
-        if progress is not None:
-            frac = min(max(it / total, 0.0), 1.0) if total else None
-            progress(f"optimizing: {stage}", frac)
-
-    def on_say(name: str) -> None:
-        if progress is not None:
-            progress(name, None)
-
-    fn = reconstruct_fn or _default_reconstruct
-    hide = {str(run): "", str(src): f"'{shown}'", str(local): f"'{shown}'"}
-    try:
-        rec = fn(local, out_dir, get_preset(preset), seed=seed_i, progress=on_progress, say=on_say)
-    except Exception as exc:  # noqa: BLE001 - every failure becomes a message on the page
-        if isinstance(exc, EasyHOIError):
-            logger.info("request failed: %s: %s", type(exc).__name__, exc)
-        else:
-            logger.exception("reconstruction failed with an internal error")
-        return _fail(_readable(exc, hide), t0)
-
-    files = {Path(f).name: Path(f) for f in (getattr(rec, "files", None) or [])}
-    missing = [n for n in ("overlay.png", "scene.glb") if n not in files or not files[n].is_file()]
-    if missing:
-        logger.error("reconstruction returned %s, missing %s", sorted(files), missing)
-        return _fail(
-            f"Internal error: the reconstruction wrote no {' and no '.join(missing)}. "
-            "This is a bug; the server log has the details.",
-            t0,
-        )
-    folder = files["overlay.png"].parent
-    if progress is not None:
-        progress("packing the results", None)
-    archive = _zip_folder(folder, run / f"{stem}-easyhoi.zip")
-    downloads = [archive, files["scene.glb"]]
-    if "report.html" in files:
-        downloads.append(files["report.html"])
-    metrics = _read_metrics(files.get("result.json"), rec)
-    view_glb, camera_position = _photo_view(files, run / "view.glb")
-    seconds = time.perf_counter() - t0
-    metrics.update(preset=preset, seed=seed_i, seconds=round(seconds, 2))
-    return DemoResult(
-        ok=True,
-        overlay=files["overlay.png"],
-        glb=files["scene.glb"],
-        view_glb=view_glb,
-        camera_position=camera_position,
-        metrics=metrics,
-        metrics_text=metrics_markdown(metrics),
-        downloads=tuple(downloads),
-        folder=folder,
-        seconds=seconds,
-    )
-
-
-def check_upload(image_path: str | Path | None, max_upload_mb: float = MAX_UPLOAD_MB):
-    """Validate an upload for the preview: ``(rgb thumbnail or None, error message or "")``."""
-    from easyhoi.io.image import load_image
-
-    if not image_path:
-        return None, ""
-    src = Path(image_path)
-    try:
-        size = src.stat().st_size
-    except OSError:
-        return None, "The upload could not be read; please upload it again."
-    if size > float(max_upload_mb) * 2**20:
-        return None, (
-            f"The photo '{src.name}' is {size / 2**20:.1f} MB; the limit is {max_upload_mb:g} MB."
-        )
-    try:
-        return load_image(src, max_side=512).rgb, ""
-    except InvalidInputError as exc:
-        return None, _readable(exc, {str(src): f"'{src.name}'"})
-
-
-# ----------------------------------------------------------------------------------------------
-# example photos
-# ----------------------------------------------------------------------------------------------
-
-
-def synthetic_examples(folder: str | Path, seeds: Sequence[int] = (0, 1)) -> list[Path]:
-    """Example photos rendered by :mod:`easyhoi.synth` when it offers scenes, else [].
-
-    Uses ``easyhoi.synth.scene.make_scene(seed)`` and its ``photo`` ((H, W, 3) uint8) when that
-    module exists; any failure there only removes the examples (it is logged).
-    """
-    import importlib
-    import importlib.util
-
-    try:
-        if importlib.util.find_spec("easyhoi.synth.scene") is None:
-            return []
-        make_scene = importlib.import_module("easyhoi.synth.scene").make_scene
-    except (ImportError, AttributeError) as exc:
-        logger.info("no synthetic example photos: %s", exc)
-        return []
-    import numpy as np
-    from PIL import Image
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    out = []
-    for seed in seeds:
-        try:
-            photo = np.asarray(make_scene(seed).photo)
-            path = folder / f"synthetic-{seed}.png"
-            Image.fromarray(photo.astype(np.uint8)).save(path)
-            out.append(path)
-        except Exception as exc:  # noqa: BLE001 - examples are optional
-            logger.warning("synthetic example %d unavailable: %s", seed, exc)
-    return out
+__all__ = [
+    "DemoResult",
+    "build_app",
+    "check_upload",
+    "handle_request",
+    "launch",
+    "metrics_markdown",
+    "synthetic_examples",
+]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -428,10 +45,11 @@ def synthetic_examples(folder: str | Path, seeds: Sequence[int] = (0, 1)) -> lis
 
 _INTRO = """\
 # EasyHOI: hand + held object from one photo
-Upload a photo of a hand holding an object and press **Run**. The reconstruction runs on this
+Upload a photo of a hand holding an object and press **Run**. If the wrong object is found,
+click on the held object in the photo (add more clicks for more of it; *hand point* marks the
+holding hand), check it with **Show mask**, and run again. The reconstruction runs on this
 machine's CPU: about half a minute with the *fast* preset on 2 cores, several minutes with
-*paper*.
-Same photo, preset and seed give the same result.
+*paper*. Same photo, points, preset and seed give the same result.
 """
 
 _CSS = """
@@ -456,6 +74,7 @@ def build_app(
     work_dir: str | Path | None = None,
     examples: Sequence[str | Path] | None = None,
     keep_runs: int = KEEP_RUNS,
+    segment_fn: Callable | None = None,
 ):
     """The demo page as a ``gradio.Blocks`` (not started; see :func:`launch`).
 
@@ -475,6 +94,10 @@ def build_app(
         Example photos offered under the upload (default: :func:`synthetic_examples`).
     keep_runs : int
         Request folders kept on disk.
+    segment_fn : callable, optional
+        The segmentation behind "Show mask" (default:
+        :func:`easyhoi.app_prompts.segment_for_preview`; see
+        :func:`~easyhoi.app_prompts.mask_preview`).
 
     Raises
     ------
@@ -499,30 +122,61 @@ def build_app(
         examples = synthetic_examples(work / "examples")
     examples = [str(p) for p in examples]
 
-    def on_upload(path):
-        rgb, err = check_upload(path, max_upload_mb)
-        return rgb, gr.update(value=f"**{err}**" if err else "", visible=bool(err))
+    from easyhoi import app_prompts as ap
 
-    def on_run(path, preset_name, seed, progress=gr.Progress()):  # noqa: B008 - gradio's API
+    def on_upload(path):
+        rgb, err, state = ap.load_preview(path, max_upload_mb)
+        return (
+            rgb, gr.update(value=f"**{err}**" if err else "", visible=bool(err)), state,
+            ap.prompt_text(state), None, "",
+        )  # fmt: skip
+
+    def on_click(path, state, mode, evt: gr.SelectData):
+        rgb, err, _ = ap.load_preview(path, max_upload_mb)
+        if rgb is None:
+            return gr.update(), state, ap.prompt_text(state)
+        state = ap.add_click(state, mode, evt.index, (rgb.shape[1], rgb.shape[0]))
+        return ap.draw_prompts(rgb, state), state, ap.prompt_text(state)
+
+    # gradio passes the click by the parameter's type, which it reads as an object: this
+    # module's annotations are strings (``from __future__ import annotations``)
+    on_click.__annotations__["evt"] = gr.SelectData
+
+    def on_clear(path, state):
+        rgb, _, fresh = ap.load_preview(path, max_upload_mb)
+        return rgb, fresh, ap.prompt_text(fresh), None, ""
+
+    def on_mask(path, state, preset_name):
+        from easyhoi.config import get_preset
+
+        rgb, text = ap.mask_preview(path, state, get_preset(preset_name), segment_fn)
+        return rgb, text
+
+    def on_run(path, preset_name, seed, state, progress=gr.Progress()):  # noqa: B008 - gradio
         def report(desc, frac):
             progress(frac, desc=desc)
 
+        try:
+            prompts = ap.state_prompts(state)
+        except InvalidInputError:
+            prompts = None
         res = handle_request(
             path, preset_name, seed, work_root=work, reconstruct_fn=reconstruct_fn,
-            max_upload_mb=max_upload_mb, keep_runs=keep_runs, progress=report,
+            max_upload_mb=max_upload_mb, keep_runs=keep_runs, progress=report, prompts=prompts,
         )  # fmt: skip
         if not res.ok:
             return (
                 None, None, "", None,
-                gr.update(value=f"**{res.error}**", visible=True),
+                gr.update(value=f"**{res.error}**", visible=True), gr.update(visible=False),
             )  # fmt: skip
         if res.view_glb is not None:  # first view = the photo's viewpoint
             view = gr.update(value=str(res.view_glb), camera_position=res.camera_position)
         else:
             view = str(res.glb)
+        notes = "\n".join(f"* {w}" for w in res.warnings)
         return (
             str(res.overlay), view, res.metrics_text, [str(p) for p in res.downloads],
-            gr.update(value="", visible=False),
+            gr.update(value="", visible=False), gr.update(value=notes, visible=bool(notes)),
         )  # fmt: skip
 
     with gr.Blocks(title="EasyHOI demo", analytics_enabled=False, delete_cache=(1800, 3600)) as app:
@@ -533,8 +187,20 @@ def build_app(
                     label=f"Photo (JPEG, PNG, WebP...; up to {max_upload_mb:g} MB)",
                     file_types=["image"], type="filepath", elem_id="photo",
                 )  # fmt: skip
-                preview = gr.Image(label="Photo", interactive=False, height=240, elem_id="preview",
-                                   buttons=["fullscreen"])  # fmt: skip
+                preview = gr.Image(label="Photo (click on the held object)", interactive=False,
+                                   height=320, elem_id="preview", buttons=[])  # fmt: skip
+                prompt_state = gr.State(ap.new_state())
+                with gr.Row():
+                    mode = gr.Radio(list(ap.MODES), value=ap.MODES[0], label="A click adds",
+                                    elem_id="click_mode")  # fmt: skip
+                    with gr.Column():
+                        show_mask = gr.Button("Show mask", elem_id="show_mask")
+                        clear = gr.Button("Clear points", elem_id="clear_points")
+                prompt_line = gr.Markdown(ap.prompt_text(None), elem_id="prompt_text")
+                mask_view = gr.Image(label="Mask preview (object green, hand orange)",
+                                     interactive=False, height=240, elem_id="mask_preview",
+                                     buttons=[])  # fmt: skip
+                mask_line = gr.Markdown("", elem_id="mask_text")
                 with gr.Row():
                     preset_box = gr.Dropdown(
                         choices=sorted(PRESETS), value=preset, label="Preset", elem_id="preset"
@@ -545,6 +211,7 @@ def build_app(
                     )  # fmt: skip
                 run = gr.Button("Run", variant="primary", elem_id="run")
                 error = gr.Markdown("", visible=False, elem_id="error")
+                warnings = gr.Markdown("", visible=False, elem_id="warnings")
                 if examples:
                     gr.Examples(examples, inputs=[photo], label="Example photos")
             with gr.Column(scale=2):
@@ -561,11 +228,20 @@ def build_app(
                         metrics = gr.Markdown("", elem_id="metrics")
                         downloads = gr.File(label="Downloads", file_count="multiple",
                                             interactive=False, elem_id="downloads")  # fmt: skip
-        photo.upload(on_upload, photo, [preview, error], queue=False)
-        photo.clear(lambda: (None, gr.update(value="", visible=False)), None, [preview, error],
+        # change, not upload: an example photo fills the file box without an upload
+        photo.change(on_upload, photo,
+                     [preview, error, prompt_state, prompt_line, mask_view, mask_line],
+                     queue=False)  # fmt: skip
+        preview.select(on_click, [photo, prompt_state, mode], [preview, prompt_state, prompt_line],
+                       queue=False)  # fmt: skip
+        clear.click(on_clear, [photo, prompt_state],
+                    [preview, prompt_state, prompt_line, mask_view, mask_line],
                     queue=False)  # fmt: skip
+        show_mask.click(on_mask, [photo, prompt_state, preset_box], [mask_view, mask_line],
+                        concurrency_limit=1, api_name="mask_preview")  # fmt: skip
         run.click(
-            on_run, [photo, preset_box, seed_box], [overlay, model3d, metrics, downloads, error],
+            on_run, [photo, preset_box, seed_box, prompt_state],
+            [overlay, model3d, metrics, downloads, error, warnings],
             concurrency_limit=1, api_name="reconstruct",
         )  # fmt: skip
     app.easyhoi_work_dir = work
@@ -582,13 +258,15 @@ def launch(
     block: bool = True,
     quiet: bool = False,
     examples: Sequence[str | Path] | None = None,
+    segment_fn: Callable | None = None,
 ):
     """Build and serve the demo on ``http://host:port`` (no share link, no analytics).
 
     ``block=False`` returns at once with the server running in a background thread; stop it
     with ``app.close()``. Returns the ``gradio.Blocks`` app.
     """
-    app = build_app(reconstruct_fn, preset, max_upload_mb, examples=examples)
+    app = build_app(reconstruct_fn, preset, max_upload_mb, examples=examples,
+                    segment_fn=segment_fn)  # fmt: skip
     app.queue(max_size=16, default_concurrency_limit=1)
     try:
         app.launch(

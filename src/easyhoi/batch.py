@@ -646,17 +646,36 @@ class ReconstructWorker:
         settings: The run's :class:`~easyhoi.settings.RunSettings`, or a configuration they are
             resolved from once per process (None: the "fast" preset). Picklable, so the worker
             can be sent to processes and Ray tasks. Each photo runs with its task's seed.
+        prompts: Batch photo name (``task.key``) -> :class:`~easyhoi.perception.prompts.Prompts`
+            (see :mod:`easyhoi.batch_prompts`).
+        strict: A photo with a low-confidence mask fails (``LowConfidenceError``) and writes
+            nothing.
     """
 
-    def __init__(self, settings=None):
+    def __init__(self, settings=None, prompts=None, strict: bool = False):
         self.settings = settings
+        self.prompts = dict(prompts or {})
+        self.strict = bool(strict)
 
     def __call__(self, task: Task) -> dict:
-        """Reconstruct one photo into ``task.output``; returns timing and file count."""
+        """Reconstruct one photo into ``task.output``.
+
+        Returns timing, file count, and what the user must hear about perception:
+        ``notes`` (the hand used is not the first detected) and ``warnings`` (low confidence).
+        """
+        from easyhoi.perception.feedback import hand_choice_note, low_confidence_lines
         from easyhoi.pipeline import reconstruct_photo
         from easyhoi.settings import RunSettings, resolve_run
 
         if not isinstance(self.settings, RunSettings):
             self.settings = resolve_run(self.settings)
-        rec = reconstruct_photo(task.image, task.output, self.settings, seed=task.seed)
-        return {"seconds": round(float(rec.seconds), 3), "files": len(rec.files)}
+        prompts = self.prompts.get(task.key)
+        rec = reconstruct_photo(task.image, task.output, self.settings, seed=task.seed,
+                                prompts=prompts, strict=self.strict)  # fmt: skip
+        note = hand_choice_note(rec.perception)
+        prompted = prompts is not None and prompts.has_object_prompt
+        return {
+            "seconds": round(float(rec.seconds), 3), "files": len(rec.files),
+            "notes": [note] if note else [],
+            "warnings": low_confidence_lines(rec.perception, "batch", prompted),
+        }  # fmt: skip

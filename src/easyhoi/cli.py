@@ -105,6 +105,7 @@ def cmd_reconstruct(args) -> int:
     batch (one folder each, a manifest; see :mod:`easyhoi.batch`)."""
     from easyhoi.pipeline import reconstruct_photo
 
+    prompts = _prompts_from_args(args)
     _check_out_dir(Path(args.out))
     # the config, the seed and the hand model (a missing or unsafe MANO file fails now, not
     # after perception) are resolved once, before any photo is read
@@ -113,13 +114,20 @@ def cmd_reconstruct(args) -> int:
     if len(args.images) > 1:
         if provided is not None:
             raise InvalidInputError("--hand-mask/--object-mask/... imports need exactly one photo")
+        if prompts is not None:
+            raise InvalidInputError(
+                "--object-point/--object-box/--hand-point need exactly one photo "
+                "(for many photos: easyhoi batch --prompts FILE)"
+            )
         return _run_batch(args, [Path(p) for p in args.images], None, run)
     image = Path(args.images[0])
     folder = Path(args.out) / image.stem
     with _Progress(args, image.name) as bar:
         rec = reconstruct_photo(
-            image, folder, run, provided=provided, progress=bar.update, say=bar.step
-        )
+            image, folder, run, provided=provided, progress=bar.update, say=bar.step,
+            prompts=prompts, strict=args.strict,
+        )  # fmt: skip
+    _tell_perception(args, image, rec.perception, prompts)
     _say(args, f"{image}: done in {rec.seconds:.1f} s -> {folder} (open report.html)")
     for f in rec.files:
         logger.info("wrote %s", f)
@@ -135,16 +143,26 @@ def cmd_batch(args) -> int:
     if not images:
         hint = "" if args.recursive else " (add --recursive to include subfolders)"
         raise InvalidInputError(f"no photos found in {folder}{hint}")
-    return _run_batch(args, images, folder, run_from_args(args))
+    prompts = None
+    if args.prompts:
+        from easyhoi.batch import plan_tasks
+        from easyhoi.batch_prompts import load_prompts_file
+
+        photos = {t.key: t.image for t in plan_tasks(images, args.out, root=folder)}
+        prompts = load_prompts_file(args.prompts, photos)
+    return _run_batch(args, images, folder, run_from_args(args), prompts)
 
 
-def _run_batch(args, images: list[Path], root: Path | None, run) -> int:
-    """Run the batch runner over ``images`` with a progress bar; the batch's exit code."""
+def _run_batch(args, images: list[Path], root: Path | None, run, prompts=None) -> int:
+    """Run the batch runner over ``images`` with a progress bar; the batch's exit code.
+
+    ``prompts``: batch photo name -> Prompts (``batch --prompts``).
+    """
     from tqdm import tqdm
 
     from easyhoi.batch import ReconstructWorker, run_batch
 
-    worker = ReconstructWorker(run)
+    worker = ReconstructWorker(run, prompts=prompts, strict=getattr(args, "strict", False))
     counts = {"ok": 0, "failed": 0, "skipped": 0}
     bar = tqdm(total=len(images), unit="photo", desc="batch",
                disable=args.quiet or not sys.stderr.isatty())  # fmt: skip
@@ -155,6 +173,9 @@ def _run_batch(args, images: list[Path], root: Path | None, run) -> int:
         bar.set_postfix(counts)
         if rec.status == "failed":
             tqdm.write(f"{rec.path}: {rec.error_type}: {rec.error}", file=sys.stderr)
+        for kind in ("notes", "warnings"):
+            for line in rec.info.get(kind) or ():
+                tqdm.write(f"{rec.path}: {kind[:-1]}: {line}", file=sys.stderr)
 
     try:
         summary = run_batch(
@@ -291,7 +312,8 @@ def _config_from_args(args):
         "amodal": args.amodal, "object": args.object_backend,
     }  # fmt: skip
     for flag, role, name in (("sam_dir", "amodal", "sam"), ("depth_dir", "object", "depth"),
-                             ("diffusion_dir", "inpainter", "diffusion")):  # fmt: skip
+                             ("diffusion_dir", "inpainter", "diffusion"),
+                             ("detector_dir", "segmenter", "grounded-sam")):  # fmt: skip
         if getattr(args, flag, None):
             perception[flag] = getattr(args, flag)
             perception[role] = perception[role] or name
@@ -315,6 +337,31 @@ def _sets_seed(overrides: dict) -> bool:
     """Whether ``--set`` overrides named the seed (``optim.seed``, or a whole ``optim``)."""
     optim = overrides.get("optim")
     return "optim.seed" in overrides or (isinstance(optim, dict) and "seed" in optim)
+
+
+def _prompts_from_args(args):
+    """The --object-point/--object-box/--hand-point prompts (pixels), or None when none given."""
+    from easyhoi.perception.prompts import Prompts, parse_numbers
+
+    points = tuple(parse_numbers(t, 2, "--object-point") for t in args.object_point or ())
+    box = None if args.object_box is None else parse_numbers(args.object_box, 4, "--object-box")
+    hand = None if args.hand_point is None else parse_numbers(args.hand_point, 2, "--hand-point")
+    prompts = Prompts(object_points=points, object_box=box, hand_point=hand)
+    if box is not None and not (box[0] < box[2] and box[1] < box[3]):
+        raise InvalidInputError(f"--object-box {args.object_box} must have x0 < x1 and y0 < y1")
+    return None if prompts.empty else prompts
+
+
+def _tell_perception(args, image, perception: dict, prompts=None) -> None:
+    """Say which hand the result uses when it is not the first, and warn about weak masks."""
+    from easyhoi.perception.feedback import hand_choice_note, low_confidence_lines
+
+    note = hand_choice_note(perception)
+    if note:
+        _err(f"{image}: note: {note}")
+    prompted = prompts is not None and prompts.has_object_prompt
+    for line in low_confidence_lines(perception, "cli", prompted):
+        _err(f"{image}: warning: {line}")
 
 
 def _check_out_dir(out: Path) -> None:
@@ -488,11 +535,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sam-dir", help="local SAM model folder (uses the 'sam' amodal backend)")
     p.add_argument("--depth-dir", help="local depth model folder (uses the 'depth' object backend)")
     p.add_argument("--diffusion-dir", help="local diffusers inpainting pipeline folder")
+    p.add_argument("--detector-dir", help="local OWLv2 or Grounding DINO folder (uses the "
+                   "'grounded-sam' segmenter with --sam-dir)")  # fmt: skip
     p.add_argument("--hand-mask", help="visible hand mask PNG (replaces segmentation)")
     p.add_argument("--object-mask", help="visible held-object mask PNG")
     p.add_argument("--amodal-mask", help="complete (amodal) object mask PNG")
     p.add_argument("--object-mesh", help="object mesh OBJ/GLB/PLY (e.g. InstantMesh output)")
     p.add_argument("--hand-params", help="HaMeR hand file (.npz/.json/.pkl)")
+    p.add_argument("--object-point", action="append", metavar="X,Y",
+                   help="a pixel inside the held object (x right, y down; repeatable)")  # fmt: skip
+    p.add_argument("--object-box", metavar="X0,Y0,X1,Y1", help="a box around the held object")
+    p.add_argument("--hand-point", metavar="X,Y", help="a pixel on the hand holding the object")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 9, writing nothing, when a mask has low confidence")  # fmt: skip
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
     _add_common(p)
@@ -509,6 +564,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true",
                    help="skip photos the manifest records as done (folder present)")  # fmt: skip
     p.add_argument("--recursive", action="store_true", help="include subfolders")
+    p.add_argument("--prompts", metavar="FILE",
+                   help="per-photo prompts: JSON {photo: {object_points, object_box, "
+                   "hand_point}} or CSV photo,kind,x,y[,x1,y1]")  # fmt: skip
+    p.add_argument("--strict", action="store_true",
+                   help="a photo with a low-confidence mask fails (exit 9)")  # fmt: skip
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
     p.add_argument("--seed", type=int, default=None, help=_SEED_HELP)
     _add_model_options(p)

@@ -364,7 +364,11 @@ class PerceptionConfig:
     object: str = "silhouette"
     """Object reconstructor giving the object mesh."""
     sam_dir: str | None = None
-    """Local folder of a SAM model (transformers format) for the "sam" amodal backend."""
+    """Local folder of a SAM model (transformers format) for the "sam" amodal backend and the
+    "grounded-sam" segmenter."""
+    detector_dir: str | None = None
+    """Local folder of an OWLv2 or Grounding DINO detector (transformers) for the
+    "grounded-sam" segmenter."""
     depth_dir: str | None = None
     """Local folder of a depth-estimation model (transformers) for the "depth" object backend."""
     diffusion_dir: str | None = None

@@ -15,6 +15,7 @@ __all__ = [
     "EasyHOIError",
     "ExitCode",
     "InvalidInputError",
+    "LowConfidenceError",
     "MissingDependencyError",
     "NoHandError",
     "NoObjectError",
@@ -37,6 +38,7 @@ class ExitCode(IntEnum):
     NO_OBJECT = 6
     OPTIMIZATION = 7
     BATCH_PARTIAL = 8
+    LOW_CONFIDENCE = 9
     INTERNAL = 70  # EX_SOFTWARE of sysexits.h
     INTERRUPTED = 130  # 128 + SIGINT, as shells report a Ctrl-C
 
@@ -52,6 +54,7 @@ EXIT_CODE_MEANINGS: dict[ExitCode, str] = {
     ExitCode.NO_OBJECT: "a hand but no held object found",
     ExitCode.OPTIMIZATION: "the optimizer could not produce a valid result",
     ExitCode.BATCH_PARTIAL: "some photos of a batch failed (see its manifest)",
+    ExitCode.LOW_CONFIDENCE: "--strict and a mask has low confidence (nothing written)",
     ExitCode.INTERNAL: "internal error, a bug: please report it with the --verbose output",
     ExitCode.INTERRUPTED: "interrupted (Ctrl-C)",
 }
@@ -117,6 +120,12 @@ class OptimizationError(EasyHOIError, RuntimeError):
     """The optimizer could not produce a valid result (for example NaN losses)."""
 
     exit_code = ExitCode.OPTIMIZATION
+
+
+class LowConfidenceError(EasyHOIError):
+    """Perception is unsure of a mask and the caller asked for certainty (``--strict``)."""
+
+    exit_code = ExitCode.LOW_CONFIDENCE
 
 
 def require(module: str, extra: str | None = None, purpose: str = ""):

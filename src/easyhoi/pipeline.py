@@ -34,6 +34,8 @@ def reconstruct_photo(
     provided=None,
     progress: Callable[[str, int, int, dict], None] | None = None,
     say: Callable[[str], None] | None = None,
+    prompts=None,
+    strict: bool = False,
 ) -> Reconstruction:
     """Reconstruct the hand and the held object of one photo.
 
@@ -48,11 +50,21 @@ def reconstruct_photo(
         provided: :class:`easyhoi.perception.chain.Provided` results of other tools.
         progress: Optimizer progress callback ``(stage, iteration, max_iters, losses)``.
         say: Callback for perception step names.
+        prompts: :class:`easyhoi.perception.prompts.Prompts` in pixels of the photo as stored
+            (before downscaling); checked against its size before any other work and recorded
+            in ``result.json`` (``meta.prompts``).
+        strict: Raise :class:`~easyhoi.errors.LowConfidenceError` when perception reports a
+            low-confidence mask, before the optimizer runs and before anything is written.
     """
     from easyhoi.io.image import load_image
 
     t0 = time.perf_counter()
     image = load_image(image_path)  # bad photos fail first, before any heavy import
+    given = None
+    if prompts is not None and not prompts.empty:
+        given = prompts.check(*image.original_size)
+        h, w = image.rgb.shape[:2]
+        prompts = scale_prompts(given, image.scale, (w, h))
 
     from easyhoi.optim.run import optimize
     from easyhoi.perception.chain import perceive
@@ -61,7 +73,14 @@ def reconstruct_photo(
         run = settings if seed is None else settings.with_seed(seed)
     else:
         run = resolve_run(settings, seed=seed)
-    inp, report = perceive(image.rgb, run, progress=say, provided=provided)
+    inp, report = perceive(image.rgb, run, progress=say, provided=provided, prompts=prompts)
+    if given is not None:
+        inp.meta["prompts"] = given.to_dict()
+    if strict and report.low_confidence:
+        from easyhoi.perception.feedback import low_confidence_error
+
+        prompted = given is not None and given.has_object_prompt
+        raise low_confidence_error(report.to_dict(), prompted)
     result = optimize(inp, run.config.optim, hand_model=run.hand_model, progress=progress)
     files = []
     if folder is not None:
@@ -71,3 +90,24 @@ def reconstruct_photo(
             result, inp, folder, hand_model=run.hand_model, title=Path(image_path).name
         )
     return Reconstruction(result, inp, report.to_dict(), files, time.perf_counter() - t0)
+
+
+def scale_prompts(prompts, scale: float, size: tuple[int, int]):
+    """``prompts`` in pixels of the photo resized by ``scale`` to ``size`` (width, height).
+
+    Coordinates are continuous (pixel ``i`` spans ``[i, i + 1)``), so they scale as they are;
+    points are kept inside the resized photo (its size was rounded).
+    """
+    from easyhoi.perception.prompts import Prompts
+
+    W, H = size
+
+    def pt(p):
+        return (min(p[0] * scale, W - 1e-3), min(p[1] * scale, H - 1e-3))
+
+    box = prompts.object_box
+    return Prompts(
+        object_points=tuple(pt(p) for p in prompts.object_points),
+        object_box=None if box is None else tuple(v * scale for v in box),
+        hand_point=None if prompts.hand_point is None else pt(prompts.hand_point),
+    )

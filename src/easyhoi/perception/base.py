@@ -79,6 +79,9 @@ class Segmentation:
         has_object: False when no held object was found (a legitimate outcome).
         candidates: object candidate masks before filtering (for pictures and debugging).
         meta: backend extras.
+        confidence: mask name ("hand", "object") ->
+            :class:`~easyhoi.perception.confidence.MaskConfidence`; empty when the backend
+            does not rate its masks.
     """
 
     hand_mask: np.ndarray
@@ -86,6 +89,7 @@ class Segmentation:
     has_object: bool
     candidates: tuple[np.ndarray, ...] = ()
     meta: dict = field(default_factory=dict)
+    confidence: dict = field(default_factory=dict)
 
 
 @runtime_checkable
@@ -177,6 +181,7 @@ _BUILTIN_MODULES: list[str] = [
     "easyhoi.perception.amodal",
     "easyhoi.perception.objects",
     "easyhoi.perception.adapters.sam",
+    "easyhoi.perception.adapters.grounded_sam",
     "easyhoi.perception.adapters.depth",
     "easyhoi.perception.adapters.diffusion",
 ]

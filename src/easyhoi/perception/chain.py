@@ -13,6 +13,8 @@ Steps (each a pluggable backend, chosen by name in :class:`~easyhoi.config.Perce
 
 from __future__ import annotations
 
+import functools
+import inspect
 import logging
 import time
 from collections.abc import Callable
@@ -24,6 +26,7 @@ from easyhoi.config import EasyHOIConfig
 from easyhoi.errors import InvalidInputError, NoHandError, NoObjectError
 from easyhoi.hoi import HOIInput
 from easyhoi.perception.base import HandDetection, Segmentation, create
+from easyhoi.perception.prompts import Prompts
 from easyhoi.settings import RunSettings, resolve_run
 
 logger = logging.getLogger(__name__)
@@ -40,6 +43,10 @@ class PerceptionReport:
     notes: list = field(default_factory=list)
     #: mask name ("hand", "object", "amodal") -> MaskConfidence (perception.confidence)
     confidence: dict = field(default_factory=dict)
+    #: index, in detection order, of the hand the result uses (None before one is chosen)
+    hand_index: int | None = None
+    #: how that hand was chosen: "first holding an object", "hand point" or "object prompt"
+    hand_choice: str | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -49,6 +56,8 @@ class PerceptionReport:
             "timings": dict(self.timings),
             "notes": list(self.notes),
             "confidence": {k: v.to_dict() for k, v in self.confidence.items()},
+            "hand_index": self.hand_index,
+            "hand_choice": self.hand_choice,
         }
 
     @property
@@ -80,6 +89,7 @@ def perceive(
     progress: Callable[[str], None] | None = None,
     seed: int | None = None,
     provided: Provided | None = None,
+    prompts: Prompts | None = None,
 ) -> tuple[HOIInput, PerceptionReport]:
     """Run the perception chain on an (H, W, 3) uint8 RGB photo.
 
@@ -94,6 +104,9 @@ def perceive(
         progress: Called with each step's name as it starts.
         seed: Replaces the run's seed when given.
         provided: Results of other tools that replace steps.
+        prompts: Pixels of ``image`` that steer the segmentation: a hand point picks the hand
+            nearest to it; object points and box reach the segmenter when its ``segment``
+            takes a ``prompts`` argument (:class:`InvalidInputError` when it does not).
 
     Raises:
         NoHandError: no hand in the photo.
@@ -121,12 +134,15 @@ def perceive(
         return out
 
     pv = provided or Provided()
+    prompts = None if prompts is None or prompts.empty else prompts.check(W, H)
     for name in ("hand_mask", "object_mask", "amodal_mask"):
         m = getattr(pv, name)
         if m is not None and np.shape(m) != (H, W):
             h, w = np.shape(m)[:2]
             raise InvalidInputError(f"{name} is {h}x{w} but the image is {H}x{W} (height x width)")
     masks_given = pv.hand_mask is not None and pv.object_mask is not None
+    # the segmenter first: a missing model folder is reported before any work
+    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter, seed)
     if pv.hand is not None and masks_given:  # nothing left for the detector to do
         say("hand detection (provided)")
         side = pv.hand[0].side
@@ -136,22 +152,35 @@ def perceive(
     report.hands_found = len(hands)
     if not hands:
         raise NoHandError("no hand found in the photo")
-    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter, seed)
+    segment = None if masks_given else _prompted(segmenter, pc.segmenter, prompts)
+    order, report.hand_choice = prompted_hand_order(hands, None if masks_given else prompts)
     chosen = seg = None
-    for i, hand in enumerate(hands):
+    for i in order:
+        hand = hands[i]
         if masks_given:
             s = Segmentation(pv.hand_mask, pv.object_mask, bool(pv.object_mask.any()))
         else:
-            s = timed(f"segmentation (hand {i})", segmenter.segment, image, hand)
+            s = timed(f"segmentation (hand {i})", segment, image, hand)
             if pv.hand_mask is not None or pv.object_mask is not None:
                 hm = s.hand_mask if pv.hand_mask is None else pv.hand_mask
                 om = s.object_mask if pv.object_mask is None else pv.object_mask
-                s = Segmentation(hm, om, bool(om.any()), s.candidates, s.meta)
+                conf = {k: v for k, v in s.confidence.items()
+                        if getattr(pv, f"{k}_mask", None) is None}  # fmt: skip
+                s = Segmentation(hm, om, bool(om.any()), s.candidates, s.meta, conf)
         if s.has_object:
             chosen, seg = hand, s
+            report.hand_index = i
+            report.hand_choice = report.hand_choice or "first holding an object"
+            report.confidence.update(s.confidence)
             break
         report.notes.append(f"hand {i} ({hand.side}) holds no object")
     if chosen is None:
+        if report.hand_choice is not None:
+            i = order[0]
+            raise NoObjectError(
+                f"the hand nearest the {report.hand_choice} (hand {i}, {hands[i].side}) holds "
+                "no object"
+            )
         raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
     report.side, report.has_object = chosen.side, True
 
@@ -212,8 +241,53 @@ def perceive(
     return inp, report
 
 
-#: Backends that load a large model from a local folder, and the config field naming it.
-_MODEL_DIR_FIELDS = {"sam": "sam_dir", "depth": "depth_dir", "diffusion": "diffusion_dir"}
+def nearest_hand(hands: list[HandDetection], point) -> int:
+    """Index of the hand whose keypoints come nearest to the pixel ``point`` (x, y)."""
+    p = np.asarray(point, float).reshape(1, 2)
+    dists = []
+    for hand in hands:
+        k = np.asarray(hand.keypoints2d, float).reshape(-1, 2)
+        dists.append(np.linalg.norm(k - p, axis=1).min() if len(k) else np.inf)
+    return int(np.argmin(dists))
+
+
+def prompted_hand_order(
+    hands: list[HandDetection], prompts: Prompts | None
+) -> tuple[list[int], str | None]:
+    """The hands to segment, in order, and why: (indices, "hand point" / "object prompt" / None).
+
+    A hand point picks the hand nearest to it; object prompts alone pick the hand nearest to
+    the object (the mean of its points, else the box centre): a held object lies at the hand
+    that holds it. Without prompts every hand is tried in detection order (reason None).
+    """
+    if prompts is not None and prompts.hand_point is not None:
+        return [nearest_hand(hands, prompts.hand_point)], "hand point"
+    if prompts is not None and prompts.has_object_prompt:
+        if prompts.object_points:
+            centre = np.mean(np.asarray(prompts.object_points, float), axis=0)
+        else:
+            x0, y0, x1, y1 = prompts.object_box
+            centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+        return [nearest_hand(hands, centre)], "object prompt"
+    return list(range(len(hands))), None
+
+
+def _prompted(segmenter, name: str, prompts: Prompts | None):
+    """``segment(image, hand)`` of ``segmenter``, handing it the object prompts."""
+    if prompts is None or not prompts.has_object_prompt:
+        return segmenter.segment
+    if "prompts" not in inspect.signature(segmenter.segment).parameters:
+        raise InvalidInputError(
+            f"the segmenter {name!r} takes no object prompts; choose one that does "
+            "(see `easyhoi doctor`) or leave out --object-point/--object-box"
+        )
+    return functools.partial(segmenter.segment, prompts=prompts)
+
+
+#: Backends that load large models from local folders, and the config fields naming them.
+_MODEL_DIR_FIELDS = {"sam": ("sam_dir",), "depth": ("depth_dir",),
+                     "diffusion": ("diffusion_dir",),
+                     "grounded-sam": ("detector_dir", "sam_dir")}  # fmt: skip
 
 
 def backend_seed(seed: int) -> int:
@@ -225,11 +299,10 @@ def backend_seed(seed: int) -> int:
     return int(seed) % 2**31
 
 
-def _backend(pc, role: str, name: str, seed: int):
+def _backend(pc, role: str, name: str, seed: int = 0):
     """Create a backend: one that takes a ``seed`` gets :func:`backend_seed`, adapters of large
-    models get their local model folder from config."""
-    import inspect
-
+    models get their local model folders from config (one folder as ``model_dir``, several
+    each under its field's name)."""
     from easyhoi.perception.base import factory
 
     kwargs = {}
@@ -239,17 +312,21 @@ def _backend(pc, role: str, name: str, seed: int):
         params = {}
     if "seed" in params:
         kwargs["seed"] = backend_seed(seed)
-    field_name = _MODEL_DIR_FIELDS.get(name)
-    if field_name is None:
+    fields = _MODEL_DIR_FIELDS.get(name)
+    if fields is None:
         return create(role, name, **kwargs)
-    model_dir = getattr(pc, field_name)
-    if not model_dir:
-        flag = "--" + field_name.replace("_", "-")
-        raise InvalidInputError(
-            f"the {role} backend {name!r} needs a local model folder: pass {flag} DIR "
-            f"(perception.{field_name}); nothing is downloaded"
-        )
-    return create(role, name, model_dir=model_dir, **kwargs)
+    dirs = {}
+    for field_name in fields:
+        dirs[field_name] = getattr(pc, field_name)
+        if not dirs[field_name]:
+            flag = "--" + field_name.replace("_", "-")
+            raise InvalidInputError(
+                f"the {role} backend {name!r} needs a local model folder: pass {flag} DIR "
+                f"(perception.{field_name}); nothing is downloaded"
+            )
+    if len(fields) == 1:
+        return create(role, name, model_dir=dirs[fields[0]], **kwargs)
+    return create(role, name, **dirs, **kwargs)
 
 
 def _jsonable(v) -> bool:

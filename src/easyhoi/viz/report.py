@@ -85,6 +85,29 @@ def _flatten(d: Mapping, prefix: str = "") -> list[tuple[str, object]]:
     return rows
 
 
+def _perception_html(meta: Mapping) -> str:
+    """Perception's confidence per mask (score, low, weak cues), the hand used and the prompts."""
+    perception = meta.get("perception") or {}
+    rows = [
+        (name, c.get("score"), "yes" if c.get("low") else "no", "; ".join(c.get("reasons") or ()))
+        for name, c in (perception.get("confidence") or {}).items()
+    ]
+    parts = ["<h2>Perception confidence</h2>",
+             _table(rows, ("mask", "score", "low", "weak cues"))]  # fmt: skip
+    facts = []
+    if perception.get("hand_index") is not None:
+        facts.append(
+            f"hand used: {perception['hand_index']} ({perception.get('side')}) of "
+            f"{perception.get('hands_found')} detected, {perception.get('hand_choice')}"
+        )
+    prompts = meta.get("prompts")
+    if prompts:
+        given = {k: v for k, v in prompts.items() if v}
+        facts.append("prompts (photo pixels): " + json.dumps(given))
+    parts += [f"<p>{html.escape(f)}</p>" for f in facts]
+    return "\n".join(parts)
+
+
 def _table(rows, header=("name", "value")) -> str:
     if not rows:
         return "<p><em>none recorded</em></p>"
@@ -264,6 +287,7 @@ def report_html(
         "</div><div><h2>Timings (s)</h2>",
         _table(timing_rows, ("step", "seconds")),
         "</div></div>",
+        _perception_html(result.meta),
         "<h2>Stages</h2>",
         _table(stage_rows, ("stage", "iterations", "seconds", "stop reason", "final total loss")),
         '<div class="tables"><div><h2>Hand parameters</h2>',

@@ -3,13 +3,14 @@
 Each adapter imports its heavy dependency only when it is instantiated and raises
 :class:`~easyhoi.errors.MissingDependencyError` naming the extra that installs it:
 
-===============================  =====================  ======================================
-registry name                    module                 extra (dependencies)
-===============================  =====================  ======================================
-``("amodal", "sam")``            :mod:`.sam`            ``sam`` (transformers)
-``("object", "depth")``          :mod:`.depth`          ``depth`` (transformers)
-``("inpainter", "diffusion")``   :mod:`.diffusion`      ``diffusion`` (diffusers, transformers)
-===============================  =====================  ======================================
+=================================  ====================  =======================================
+registry name                      module                extra (dependencies)
+=================================  ====================  =======================================
+``("amodal", "sam")``              :mod:`.sam`           ``sam`` (transformers)
+``("object", "depth")``            :mod:`.depth`         ``depth`` (transformers)
+``("inpainter", "diffusion")``     :mod:`.diffusion`     ``diffusion`` (diffusers, transformers)
+``("segmenter", "grounded-sam")``  :mod:`.grounded_sam`  ``sam`` (transformers)
+=================================  ====================  =======================================
 
 Weights are read with ``local_files_only=True`` from a folder the user gives (a folder written
 by ``save_pretrained`` or a downloaded hub snapshot). Importing this package imports neither

@@ -86,6 +86,7 @@ class SamAmodalSegmenter:
         self.model.eval().to(device)
         self.device = torch.device(device)
         self.last_scores: np.ndarray | None = None
+        self._embedding = None  # (image key, embedding) of the latest photo
 
     def segment(
         self,
@@ -104,8 +105,6 @@ class SamAmodalSegmenter:
         box : (u0, v0, u1, v1) or None (derived likewise).
         visible_mask : (H, W) bool visible object mask.
         """
-        import torch
-
         img = check_image(image)
         H, W = img.shape[:2]
         vis = check_bool_mask(visible_mask, (H, W), "visible object mask")
@@ -113,23 +112,46 @@ class SamAmodalSegmenter:
             auto_pts, auto_box = prompts_from_mask(vis)
             points = auto_pts if points is None else points
             box = auto_box if box is None else box
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        if len(pts) == 0 or not np.isfinite(pts).all():
-            raise InvalidInputError("SAM needs at least one finite (u, v) point prompt")
-        b = [float(x) for x in np.asarray(box, dtype=np.float64).reshape(4)]
-        if not (b[0] < b[2] and b[1] < b[3]):
-            raise InvalidInputError(f"box must be (u0, v0, u1, v1) with u0 < u1, v0 < v1: {b}")
-        inputs = self.processor(
-            images=img,
-            input_points=[[pts.tolist()]],
-            input_labels=[[[1] * len(pts)]],
-            input_boxes=[[b]],
-            return_tensors="pt",
-        )
+        return self.predict(img, points, box)
+
+    def predict(
+        self,
+        image: np.ndarray,
+        points: np.ndarray | None,
+        box: tuple[float, float, float, float] | None = None,
+    ) -> np.ndarray:
+        """(H, W) bool: the best of SAM's three masks for positive ``points`` and/or a ``box``.
+
+        The image embedding of the latest photo is kept, so prompting the same photo again
+        costs only the mask decoder.
+        """
+        import hashlib
+
+        import torch
+
+        img = check_image(image)
+        H, W = img.shape[:2]
+        pts = np.zeros((0, 2)) if points is None else np.asarray(points, np.float64).reshape(-1, 2)
+        if not np.isfinite(pts).all() or (len(pts) == 0 and box is None):
+            raise InvalidInputError("SAM needs finite (u, v) point prompts, a box, or both")
+        kw = {}
+        if len(pts):
+            kw.update(input_points=[[pts.tolist()]], input_labels=[[[1] * len(pts)]])
+        if box is not None:
+            b = [float(x) for x in np.asarray(box, dtype=np.float64).reshape(4)]
+            if not (b[0] < b[2] and b[1] < b[3]):
+                raise InvalidInputError(f"box must be (u0, v0, u1, v1) with u0 < u1, v0 < v1: {b}")
+            kw["input_boxes"] = [[b]]
+        inputs = self.processor(images=img, return_tensors="pt", **kw)
         sizes = (inputs.pop("original_sizes"), inputs.pop("reshaped_input_sizes"))
+        pixels = inputs.pop("pixel_values")
         inputs = {k: v.to(self.device) for k, v in inputs.items()}
+        key = (img.shape, hashlib.sha1(img.tobytes()).hexdigest())
         with torch.no_grad():
-            out = self.model(**inputs, multimask_output=True)
+            if self._embedding is None or self._embedding[0] != key:
+                emb = self.model.get_image_embeddings(pixels.to(self.device))
+                self._embedding = (key, emb)
+            out = self.model(image_embeddings=self._embedding[1], multimask_output=True, **inputs)
         masks = self.processor.image_processor.post_process_masks(
             out.pred_masks.cpu(), sizes[0], sizes[1]
         )[0][0]  # (C, H, W)

@@ -1,0 +1,244 @@
+"""Click-to-prompt for the web demo: points on the shown photo, drawn, and a mask preview.
+
+The page shows the photo downscaled (at most :data:`PREVIEW_SIDE` pixels); a click there gives
+pixel coordinates of that thumbnail, kept here in pixels of the photo as stored (the same
+coordinates as ``easyhoi reconstruct --object-point``). The state of one page is a small JSON
+dict (see :func:`new_state`), so it lives in the browser session and needs no server storage.
+
+Nothing here imports gradio: :mod:`easyhoi.app` wires these functions to the page, and the
+tests call them directly.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from easyhoi.errors import EasyHOIError, InvalidInputError
+from easyhoi.perception.prompts import Prompts
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "MODES",
+    "PREVIEW_SIDE",
+    "add_click",
+    "draw_prompts",
+    "load_preview",
+    "mask_preview",
+    "new_state",
+    "prompt_text",
+    "segment_for_preview",
+    "state_prompts",
+]
+
+#: Longer side of the photo as shown on the page, in pixels.
+PREVIEW_SIDE = 512
+#: What a click adds: a point on the held object (repeatable) or the point on the holding hand.
+MODES = ("object point", "hand point")
+#: At most this many object points (a few clicks are enough; more is a stuck mouse).
+MAX_OBJECT_POINTS = 16
+
+_OBJECT_COLOUR = (40, 220, 90)
+_HAND_COLOUR = (255, 140, 0)
+
+
+def new_state(photo_size: tuple[int, int] | None = None) -> dict:
+    """An empty prompt state for a photo of ``photo_size`` (width, height) as stored."""
+    size = None if photo_size is None else [int(photo_size[0]), int(photo_size[1])]
+    return {"object_points": [], "hand_point": None, "photo_size": size}
+
+
+def load_preview(path, max_upload_mb: float) -> tuple[np.ndarray | None, str, dict]:
+    """``(thumbnail RGB or None, error message or "", fresh state)`` of an upload."""
+    from easyhoi.app_request import check_upload
+
+    rgb, err = check_upload(path, max_upload_mb)
+    if rgb is None:
+        return None, err, new_state()
+    from easyhoi.io.image import load_image
+
+    try:
+        size = load_image(path, max_side=PREVIEW_SIDE).original_size
+    except InvalidInputError as exc:  # pragma: no cover - check_upload decoded it already
+        return None, str(exc), new_state()
+    return rgb, "", new_state(size)
+
+
+def add_click(state: dict | None, mode: str, xy, shown_size: tuple[int, int]) -> dict:
+    """The state after a click at ``xy`` (pixels of the shown image of ``shown_size`` (w, h)).
+
+    ``mode`` is one of :data:`MODES`: an object point is appended, the hand point replaced.
+    A click outside the image (or before a photo is loaded) leaves the state as it is.
+    """
+    state = dict(state or new_state())
+    size = state.get("photo_size")
+    if size is None or xy is None:
+        return state
+    x, y = float(xy[0]), float(xy[1])
+    w, h = shown_size
+    if not (0 <= x < w and 0 <= y < h):
+        return state
+    W, H = size
+    # pixel centres of the thumbnail to coordinates of the stored photo
+    px = round(min((x + 0.5) * W / w, W - 0.5), 1)
+    py = round(min((y + 0.5) * H / h, H - 0.5), 1)
+    if mode == MODES[1]:
+        state["hand_point"] = [px, py]
+    elif mode == MODES[0]:
+        pts = list(state.get("object_points") or [])
+        state["object_points"] = (pts + [[px, py]])[-MAX_OBJECT_POINTS:]
+    else:
+        raise InvalidInputError(f"unknown click mode {mode!r}; one of {', '.join(MODES)}")
+    return state
+
+
+def state_prompts(state: dict | None) -> Prompts | None:
+    """The :class:`Prompts` of a state (photo pixels), or None when there is none."""
+    if not state:
+        return None
+    p = Prompts.from_dict({k: state.get(k) for k in ("object_points", "hand_point")})
+    return None if p.empty else p
+
+
+def prompt_text(state: dict | None) -> str:
+    """One line for the page: the points so far (photo pixels), or how to add them."""
+    p = state_prompts(state)
+    if p is None:
+        return (
+            "Click on the held object in the photo to add a point (optional: the automatic "
+            "choice is used without)."
+        )
+    parts = []
+    if p.object_points:
+        pts = ", ".join(f"({x:.0f}, {y:.0f})" for x, y in p.object_points)
+        parts.append(f"object point{'s' if len(p.object_points) > 1 else ''}: {pts}")
+    if p.hand_point is not None:
+        parts.append(f"hand point: ({p.hand_point[0]:.0f}, {p.hand_point[1]:.0f})")
+    return "; ".join(parts)
+
+
+def draw_prompts(rgb: np.ndarray, state: dict | None, masks=None) -> np.ndarray:
+    """The thumbnail with the points drawn (and ``masks`` = (hand, object) tinted, if given).
+
+    Object points are green discs, the hand point an orange disc, both outlined in white.
+    """
+    from PIL import Image, ImageDraw
+
+    img = np.asarray(rgb, np.uint8).copy()
+    h, w = img.shape[:2]
+    if masks is not None:
+        for mask, colour in zip(masks, (_HAND_COLOUR, _OBJECT_COLOUR), strict=True):
+            if mask is not None:
+                m = _resize_mask(mask, (w, h))
+                img[m] = (0.45 * img[m] + 0.55 * np.asarray(colour)).astype(np.uint8)
+    size = (state or {}).get("photo_size")
+    if not size:
+        return img
+    sx, sy = w / size[0], h / size[1]
+    r = max(3, round(min(w, h) / 60))
+    pil = Image.fromarray(img)
+    draw = ImageDraw.Draw(pil)
+    points = [(p, _OBJECT_COLOUR) for p in state.get("object_points") or []]
+    if state.get("hand_point"):
+        points.append((state["hand_point"], _HAND_COLOUR))
+    for (x, y), colour in points:
+        u, v = x * sx, y * sy
+        draw.ellipse((u - r, v - r, u + r, v + r), fill=colour, outline=(255, 255, 255), width=2)
+    return np.asarray(pil)
+
+
+def _resize_mask(mask: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    import cv2
+
+    m = np.asarray(mask).astype(np.uint8)
+    if m.shape[::-1] != tuple(size):
+        m = cv2.resize(m, size, interpolation=cv2.INTER_NEAREST)
+    return m.astype(bool)
+
+
+# ----------------------------------------------------------------------------------------------
+# mask preview
+# ----------------------------------------------------------------------------------------------
+
+#: ``(rgb, config, prompts) -> (hand mask, object mask, facts)``: masks (H, W) bool of ``rgb``.
+SegmentFn = Callable[[np.ndarray, object, Prompts | None], tuple]
+
+
+def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
+    """Hand detection and segmentation of the perception chain, with the prompts.
+
+    The hand is chosen as in :func:`easyhoi.perception.chain.perceive`
+    (:func:`~easyhoi.perception.chain.prompted_hand_order`). Returns
+    ``(hand mask, object mask, facts)``; facts holds ``hands_found``, ``hand_index``, ``side``
+    and ``confidence`` (mask name -> the JSON form of its MaskConfidence).
+    """
+    from easyhoi.errors import NoHandError, NoObjectError
+    from easyhoi.perception.chain import _backend, _prompted, prompted_hand_order
+
+    pc = config.perception
+    H, W = rgb.shape[:2]
+    prompts = None if prompts is None else prompts.check(W, H)
+    seed = config.optim.seed
+    segmenter = _backend(pc, "segmenter", pc.segmenter, seed)
+    hands = _backend(pc, "hand", pc.hand, seed).detect(rgb)
+    if not hands:
+        raise NoHandError("no hand found in the photo")
+    segment = _prompted(segmenter, pc.segmenter, prompts)
+    order, _ = prompted_hand_order(hands, prompts)
+    for i in order:
+        seg = segment(rgb, hands[i])
+        if seg.has_object:
+            facts = {"hands_found": len(hands), "hand_index": i, "side": hands[i].side,
+                     "confidence": {k: v.to_dict() for k, v in seg.confidence.items()}}  # fmt: skip
+            return seg.hand_mask, seg.object_mask, facts
+    raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
+
+
+def mask_preview(
+    path,
+    state: dict | None,
+    config,
+    segment_fn: SegmentFn | None = None,
+) -> tuple[np.ndarray | None, str]:
+    """``(thumbnail with the masks tinted and the points drawn, one sentence)`` of an upload.
+
+    The photo is segmented at the size the reconstruction uses (prompts scaled to it), so the
+    preview shows the mask the reconstruction will start from. Failures become the sentence.
+    """
+    from easyhoi.app_request import _readable
+    from easyhoi.io.image import load_image
+    from easyhoi.pipeline import scale_prompts
+
+    if not path:
+        return None, "Please upload a photo first."
+    try:
+        work = load_image(path)
+        thumb = load_image(path, max_side=PREVIEW_SIDE).rgb
+        prompts = state_prompts(state)
+        if prompts is not None:
+            prompts = prompts.check(*work.original_size)
+            h, w = work.rgb.shape[:2]
+            prompts = scale_prompts(prompts, work.scale, (w, h))
+        hand, obj, facts = (segment_fn or segment_for_preview)(work.rgb, config, prompts)
+    except Exception as exc:  # noqa: BLE001 - every failure becomes a sentence on the page
+        if not isinstance(exc, EasyHOIError):
+            logger.exception("mask preview failed")
+        hint = " Click on the held object to point at it." if state_prompts(state) is None else ""
+        return None, _readable(exc, {str(path): f"'{Path(str(path)).name}'"}) + hint
+    from easyhoi.perception.feedback import low_confidence_lines
+
+    share = float(np.mean(obj)) * 100
+    text = f"Object mask: {share:.1f}% of the photo (green); hand (orange)"
+    if facts.get("hand_index"):
+        text += f"; hand {facts['hand_index']} ({facts.get('side')}) of {facts['hands_found']}"
+    conf = facts.get("confidence") or {}
+    if conf:
+        text += "; confidence " + ", ".join(f"{k} {c['score']:.2f}" for k, c in conf.items())
+    prompted = prompts is not None and prompts.has_object_prompt
+    warnings = low_confidence_lines({"confidence": conf}, "demo", prompted)
+    text += "." + "".join(f" {w[0].upper()}{w[1:]}." for w in warnings)
+    return draw_prompts(thumb, state, (hand, obj)), text

@@ -1,0 +1,88 @@
+"""What the user is told about perception's certainty, and which prompt fixes a weak mask.
+
+Perception reports, per mask, a :class:`~easyhoi.perception.confidence.MaskConfidence` (a score
+and the weak cues). These functions turn the JSON form of that report
+(:meth:`~easyhoi.perception.chain.PerceptionReport.to_dict`) into sentences for the command
+line and the web demo, so both say the same thing:
+
+* a low-confidence mask names its weak cues and the one gesture that fixes it: a point on the
+  held object for the object masks, a point on the holding hand for the hand mask;
+* a result that does not use the first detected hand says so, and why.
+"""
+
+from __future__ import annotations
+
+from easyhoi.errors import LowConfidenceError
+
+#: The fix for a weak mask, per mask name: on the command line and in the web demo.
+_ADVICE = {
+    "cli": {
+        "object": "re-run with --object-point X,Y on the held object "
+        "(or --object-box X0,Y0,X1,Y1 around it)",
+        "hand": "re-run with --hand-point X,Y on the hand that holds the object",
+    },
+    "batch": {
+        "object": "give the photo an object_point on the held object in the --prompts file",
+        "hand": "give the photo a hand_point on the hand that holds the object in the --prompts "
+        "file",
+    },
+    "demo": {
+        "object": "click on the held object in the photo and run again",
+        "hand": "choose 'hand' and click on the hand that holds the object, then run again",
+    },
+}
+_ADVICE_MORE = {
+    "cli": "add --object-point X,Y on parts of the object the mask misses, or an --object-box",
+    "batch": "add object_point rows on parts of the object the mask misses, or an object_box",
+    "demo": "click on the parts of the object the mask misses and run again",
+}
+
+
+def advice(mask: str, where: str = "cli", prompted: bool = False) -> str:
+    """What to do about a weak ``mask`` ("hand", "object", "amodal"), for ``where``.
+
+    ``prompted``: the object was already pointed at (then: more points, or a box).
+    """
+    kind = "hand" if mask == "hand" else "object"
+    if kind == "object" and prompted:
+        return _ADVICE_MORE[where]
+    return _ADVICE[where][kind]
+
+
+def low_confidence_lines(perception: dict, where: str = "cli", prompted: bool = False) -> list:
+    """One sentence per low-confidence mask of a perception report (JSON form); [] if none."""
+    lines = []
+    for name, conf in (perception.get("confidence") or {}).items():
+        if not conf.get("low"):
+            continue
+        reasons = "; ".join(conf.get("reasons") or ()) or "no cue stood out"
+        lines.append(
+            f"low confidence in the {name} mask (score {float(conf['score']):.2f}; weak: "
+            f"{reasons}): {advice(name, where, prompted)}"
+        )
+    return lines
+
+
+def low_confidence_error(perception: dict, prompted: bool = False) -> LowConfidenceError:
+    """The :class:`LowConfidenceError` of ``--strict`` for a report with low-confidence masks."""
+    lines = low_confidence_lines(perception, "cli", prompted)
+    return LowConfidenceError("; ".join(lines) + " (--strict: no result written)")
+
+
+def hand_choice_note(perception: dict) -> str | None:
+    """A sentence when the result uses another hand than the first detected one, else None."""
+    index = perception.get("hand_index")
+    if index is None:  # a report that names the hand used only in its notes
+        used = [n for n in perception.get("notes") or () if n.startswith("using hand ")]
+        index = int(used[-1].split()[2]) if used else None
+    if not index:
+        return None
+    side = perception.get("side") or "?"
+    if perception.get("hand_choice") in ("hand point", "object prompt"):
+        return f"using hand {index} ({side}), the hand nearest the {perception['hand_choice']}"
+    skipped = [n for n in perception.get("notes") or () if n.endswith("holds no object")]
+    why = "; ".join(skipped) or "the hands before it hold no object"
+    return (
+        f"{why}: the result uses hand {index} ({side}) of {perception.get('hands_found')} "
+        f"detected (choose another with --hand-point X,Y)"
+    )

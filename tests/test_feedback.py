@@ -1,0 +1,63 @@
+"""The sentences about perception's certainty: weak masks with their fix, the hand used."""
+
+from __future__ import annotations
+
+from easyhoi.errors import ExitCode, LowConfidenceError
+from easyhoi.perception.chain import PerceptionReport
+from easyhoi.perception.confidence import MaskConfidence
+from easyhoi.perception.feedback import (
+    advice,
+    hand_choice_note,
+    low_confidence_error,
+    low_confidence_lines,
+)
+
+
+def report(**conf) -> dict:
+    r = PerceptionReport(hands_found=1, side="right", has_object=True)
+    r.confidence = {k: MaskConfidence(*v) for k, v in conf.items()}
+    return r.to_dict()
+
+
+def test_only_low_masks_are_named_with_their_weak_cues_and_fix():
+    rep = report(hand=(0.8, ()), object=(0.2, ("touches the border", "no contrast")),
+                 amodal=(0.49, ()))  # fmt: skip
+    lines = low_confidence_lines(rep)
+    assert lines == [
+        "low confidence in the object mask (score 0.20; weak: touches the border; no contrast): "
+        "re-run with --object-point X,Y on the held object (or --object-box X0,Y0,X1,Y1 around "
+        "it)",
+        "low confidence in the amodal mask (score 0.49; weak: no cue stood out): re-run with "
+        "--object-point X,Y on the held object (or --object-box X0,Y0,X1,Y1 around it)",
+    ]
+    assert low_confidence_lines(report(hand=(0.5, ()), object=(0.99, ()))) == []
+    assert low_confidence_lines({}) == []
+    assert advice("hand", "demo").startswith("choose 'hand' and click on the hand")
+    assert advice("object", "batch", prompted=True).startswith("add object_point rows")
+    err = low_confidence_error(rep)
+    assert isinstance(err, LowConfidenceError) and err.exit_code == ExitCode.LOW_CONFIDENCE == 9
+    assert str(err).endswith("(--strict: no result written)") and "object mask" in str(err)
+
+
+def test_hand_choice_note():
+    base = {"hands_found": 2, "side": "left", "notes": ["hand 0 (right) holds no object"]}
+    assert hand_choice_note({**base, "hand_index": 0}) is None
+    assert hand_choice_note({**base, "hand_index": None}) is None
+    assert hand_choice_note({**base, "hand_index": 1}) == (
+        "hand 0 (right) holds no object: the result uses hand 1 (left) of 2 detected (choose "
+        "another with --hand-point X,Y)"
+    )
+    assert hand_choice_note({**base, "hand_index": 1, "hand_choice": "hand point"}) == (
+        "using hand 1 (left), the hand nearest the hand point"
+    )
+    # a report that names the hand used only in its notes
+    named = {**base, "notes": base["notes"] + ["using hand 1 (left)"]}
+    assert hand_choice_note(named).startswith("hand 0 (right) holds no object: the result uses")
+
+
+def test_hand_choice_note_of_an_object_prompt():
+    perception = {"hands_found": 2, "side": "left", "hand_index": 1,
+                  "hand_choice": "object prompt"}  # fmt: skip
+    assert hand_choice_note(perception) == (
+        "using hand 1 (left), the hand nearest the object prompt"
+    )

@@ -1,0 +1,156 @@
+"""Prompts through the perception chain: the hand point picks the hand, object prompts reach a
+segmenter that takes them, and a segmenter that does not is refused by name."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from easyhoi.config import EasyHOIConfig
+from easyhoi.errors import InvalidInputError, NoObjectError
+from easyhoi.perception import base
+from easyhoi.perception.base import HandDetection, Segmentation
+from easyhoi.perception.chain import nearest_hand, perceive
+from easyhoi.perception.prompts import Prompts
+
+IMAGE = np.zeros((100, 200, 3), np.uint8)
+
+
+def hand_at(u: float, v: float, side: str) -> HandDetection:
+    """21 keypoints on a 20 px circle around (u, v)."""
+    a = np.linspace(0, 2 * np.pi, 21)
+    k = np.stack([u + 20 * np.cos(a), v + 20 * np.sin(a)], 1)
+    return HandDetection(k, None, side, 0.9)
+
+
+class TwoHands:
+    def detect(self, image):
+        return [hand_at(40, 50, "left"), hand_at(160, 50, "right")]
+
+
+class Recording:
+    """A segmenter that records its calls and finds no object (so perceive stops there)."""
+
+    calls: list = []
+
+    def segment(self, image, hand, prompts=None):
+        Recording.calls.append((hand.side, prompts))
+        m = np.zeros(image.shape[:2], bool)
+        return Segmentation(m, m, False)
+
+
+class Unprompted:
+    def segment(self, image, hand):
+        m = np.zeros(image.shape[:2], bool)
+        return Segmentation(m, m, False)
+
+
+@pytest.fixture
+def config(monkeypatch):
+    monkeypatch.setitem(base._REGISTRY["hand"], "two-hands", TwoHands)
+    monkeypatch.setitem(base._REGISTRY["segmenter"], "recording", Recording)
+    monkeypatch.setitem(base._REGISTRY["segmenter"], "unprompted", Unprompted)
+    Recording.calls = []
+    cfg = EasyHOIConfig()
+    return replace(cfg, perception=replace(cfg.perception, hand="two-hands",
+                                           segmenter="recording"))  # fmt: skip
+
+
+def test_nearest_hand():
+    hands = TwoHands().detect(IMAGE)
+    assert nearest_hand(hands, (10, 90)) == 0
+    assert nearest_hand(hands, (125, 5)) == 1
+    assert nearest_hand(hands, (100, 50)) in (0, 1)
+
+
+def test_without_prompts_every_hand_is_tried_in_order(config):
+    with pytest.raises(NoObjectError, match="found 2 hand"):
+        perceive(IMAGE, config)
+    assert Recording.calls == [("left", None), ("right", None)]
+
+
+def test_hand_point_segments_only_the_pointed_hand(config):
+    with pytest.raises(NoObjectError, match=r"nearest the hand point \(hand 1, right\)"):
+        perceive(IMAGE, config, prompts=Prompts(hand_point=(150.0, 80.0)))
+    assert Recording.calls == [("right", None)]  # no object prompt: the segmenter gets none
+
+
+def test_object_prompts_reach_the_segmenter_of_the_nearest_hand(config):
+    prompts = Prompts(object_points=((30.0, 40.0), (70.0, 40.0)), object_box=(150, 10, 199, 90))
+    with pytest.raises(NoObjectError, match=r"nearest the object prompt \(hand 0, left\)"):
+        perceive(IMAGE, config, prompts=prompts)
+    assert Recording.calls == [("left", prompts)]  # the points' mean (50, 40) is at the left hand
+    Recording.calls = []
+    boxed = Prompts(object_box=(150.0, 10.0, 199.0, 90.0))  # centre (174.5, 50): right hand
+    with pytest.raises(NoObjectError, match=r"hand 1, right"):
+        perceive(IMAGE, config, prompts=boxed)
+    assert Recording.calls == [("right", boxed)]
+
+
+def test_prompts_outside_the_image_and_unprompted_segmenters_are_refused(config):
+    with pytest.raises(InvalidInputError, match="outside the 200x100 photo"):
+        perceive(IMAGE, config, prompts=Prompts(object_points=((250.0, 10.0),)))
+    unprompted = replace(config, perception=replace(config.perception, segmenter="unprompted"))
+    with pytest.raises(InvalidInputError, match="segmenter 'unprompted' takes no object prompts"):
+        perceive(IMAGE, unprompted, prompts=Prompts(object_points=((25.0, 10.0),)))
+    # a hand point needs nothing from the segmenter
+    with pytest.raises(NoObjectError):
+        perceive(IMAGE, unprompted, prompts=Prompts(hand_point=(25.0, 10.0)))
+    assert Recording.calls == []
+
+
+def test_the_segmenters_confidence_reaches_the_report(config, monkeypatch):
+    from easyhoi.perception.confidence import MaskConfidence
+
+    class Rated:
+        def segment(self, image, hand, prompts=None):
+            obj = np.zeros(image.shape[:2], bool)
+            obj[30:70, 120:170] = True
+            hand_mask = np.zeros_like(obj)
+            hand_mask[30:70, 140:180] = True
+            hand_mask &= ~obj
+            conf = {"hand": MaskConfidence(0.8), "object": MaskConfidence(0.3, ("faint edge",))}
+            return Segmentation(hand_mask, obj, hand.side == "right", confidence=conf)
+
+    monkeypatch.setitem(base._REGISTRY["segmenter"], "rated", Rated)
+    rated = replace(config, perception=replace(config.perception, segmenter="rated"))
+    img = np.random.default_rng(0).integers(0, 255, (100, 200, 3), dtype=np.uint8)
+    inp, report = perceive(img, rated)
+    assert report.hand_index == 1 and report.side == "right"
+    assert report.low_confidence == ["object"]
+    assert inp.meta["perception"]["confidence"]["object"] == {
+        "score": 0.3, "low": True, "reasons": ["faint edge"]
+    }  # fmt: skip
+    assert inp.meta["perception"]["notes"][0] == "hand 0 (left) holds no object"
+    # an imported object mask replaces the segmenter's object mask and its confidence
+    from easyhoi.perception.chain import Provided
+
+    given = np.zeros((100, 200), bool)
+    given[40:60, 130:160] = True
+    _, report = perceive(img, rated, provided=Provided(object_mask=given))
+    assert set(report.confidence) == {"hand"}
+
+
+def test_grounded_sam_gets_both_model_folders(monkeypatch, tmp_path):
+    from easyhoi.cli import _config_from_args, build_parser
+    from easyhoi.config import PerceptionConfig
+    from easyhoi.perception import chain
+
+    seen = {}
+
+    def fake_create(role, name, **kw):
+        seen.update(role=role, name=name, **kw)
+        return object()
+
+    monkeypatch.setattr(chain, "create", fake_create)
+    pc = PerceptionConfig(segmenter="grounded-sam", detector_dir="/m/owl", sam_dir="/m/sam")
+    chain._backend(pc, "segmenter", "grounded-sam", 3)
+    assert seen == {"role": "segmenter", "name": "grounded-sam", "detector_dir": "/m/owl",
+                    "sam_dir": "/m/sam"}  # fmt: skip
+    flags = ["--detector-dir", "/m/owl", "--sam-dir", "/m/sam"]
+    args = build_parser().parse_args(["reconstruct", "x.jpg", "--out", str(tmp_path), *flags])
+    pc = _config_from_args(args).perception
+    assert (pc.segmenter, pc.detector_dir, pc.amodal, pc.sam_dir) == (
+        "grounded-sam", "/m/owl", "sam", "/m/sam")  # fmt: skip
