@@ -232,7 +232,7 @@ def main(argv=None) -> int:
             if args.jsonl:
                 with open(args.jsonl, "a") as fh:
                     fh.write(json.dumps(r) + "\n")
-            print(f"{r['object']:28s} s{seed} {r['shape']:12s} cd {r['cd']:.3f} "
+            print(f"{r['object']:28s} s{seed} {r['shape']:12s} cd {r['cd']:.3f} f5 {r['f5']:.3f} "
                   f"box {r['box_cd']:.3f} sph {r['sphere_cd']:.3f} f10 {r['f10']:.3f} "
                   f"scale {r['scale_err']:.3f} placed {r['cd_placed']:.2f} "
                   f"amodal {r['amodal_iou']:.2f} {r['seconds']:.2f}s", file=sys.stderr)  # fmt: skip
