@@ -210,3 +210,28 @@ def test_depth_adapter_uses_the_hypotheses(tmp_path):
     # the random model's relief is noise: the grip still makes it a thin slab of 20 x 10 cm
     assert md["shape"]["shape"] == "slab"
     np.testing.assert_allclose(mesh.extents * md["meters_per_unit"], [0.2, 0.1, 0.01], rtol=0.15)
+
+
+def test_hand_inputs_from_a_fitted_hand():
+    from easyhoi.hand import load_hand_model
+    from easyhoi.perception.base import HandDetection
+    from easyhoi.perception.objects import hand_inputs
+    from easyhoi.structures import Camera, HandParams
+
+    model = load_hand_model("open")
+    params = HandParams.zeros()  # the hand at the world origin, the camera 0.5 m behind it
+    cam = Camera.from_focal(500.0, 320, 240, t=[0.0, 0.0, 0.5])
+    det = HandDetection(np.zeros((21, 2)), None, "right", 1.0, params=params, camera=cam)
+    m = np.zeros((240, 320), bool)
+    kw = hand_inputs(SilhouetteReconstructor(), det, model, m, m)
+    assert kw["hand_keypoints2d"].shape == (21, 2) and kw["hand_keypoints3d"].shape == (21, 3)
+    # the 2D keypoints are the projection of the 3D ones (camera frame)
+    k3 = kw["hand_keypoints3d"]
+    proj = 500.0 * k3[:, :2] / k3[:, 2:] + [160.0, 120.0]
+    np.testing.assert_allclose(kw["hand_keypoints2d"], proj, atol=1e-3)
+
+    class TwoArgs:
+        def reconstruct(self, image, mask):
+            return None
+
+    assert hand_inputs(TwoArgs(), det, model, m, m) == {}
