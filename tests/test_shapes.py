@@ -103,7 +103,7 @@ def phone_with_hand(thickness_m=0.01, s=1000.0):
     k3[:, 1] = rng.uniform(-0.03, 0.03, 21)
     k3[:, 2] = rng.uniform(-0.03, 0.03, 21)
     front, behind = [2, 3, 4], [8, 12, 16]
-    k3[front, :2] = [[-0.08, -0.02], [-0.07, 0.0], [-0.06, 0.02]]
+    k3[front, :2] = [[-0.07, -0.015], [-0.07, 0.005], [-0.06, 0.02]]
     k3[behind, :2] = [[-0.07, -0.03], [-0.05, 0.01], [-0.04, 0.03]]
     k3[front, 2] = -thickness_m / 2 - PAD_M
     k3[behind, 2] = thickness_m / 2 + PAD_M
@@ -133,6 +133,10 @@ def test_hand_cues_scale_and_thickness():
     one_sided = hand_cues(k2, k3, m, np.ones_like(m))
     assert one_sided.depth_m is None and one_sided.confidence == 0.0
     assert hand_cues(k2[:5], k3, m, hand) is None
+    # a keypoint near the rim (less than 0.3 inscribed radii inside) does not count
+    k2_rim = k2.copy()
+    k2_rim[2] = [m.nonzero()[1].min() + 3, 120.0]
+    assert 2 not in hand_cues(k2_rim, k3, m, hand).front
 
 
 def test_slab_from_a_flat_grip_with_metric_size():

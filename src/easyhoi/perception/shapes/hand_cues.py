@@ -14,11 +14,13 @@ the fitted hand model — a hand model has a known size, so its keypoints are me
   finger's soft tissue on both sides (:data:`PAD_M` each; keypoints are joint centres) is the
   object's thickness along the view where it is gripped when the fingers press flat faces (a
   phone, a book, a box pinched front to back), and a lower bound of its largest thickness when
-  they touch a rounded object away from its front-most point. Medians: keypoints near the
-  outline see the object's rim. It holds for any grasp type (pinch, power wrap, lateral) as
-  long as the hand holds the object from both sides along the view; when the whole hand is on
-  one side the cue is absent. ``confidence`` grows with the number of keypoints on the lesser
-  side (1 with three or more).
+  they touch a rounded object away from its front-most point. Only keypoints at least
+  :data:`INTERIOR_FRACTION` of the largest inscribed radius inside the outline count: on a ball of
+  radius r, a finger that projects that far inside touches within 44 degrees of the pole facing
+  it, so front and back fingers are at least 1.4 r apart and a round object is not mistaken for a
+  flat one. It holds for any grasp type (pinch, power wrap, lateral) as long as the hand holds the
+  object from both sides along the view; when the whole hand is on one side the cue is absent.
+  ``confidence`` grows with the number of keypoints on the lesser side (1 with three or more).
 """
 
 from __future__ import annotations
@@ -27,6 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: Keypoints count only this far inside the outline, as a fraction of its largest inscribed
+#: radius (module docs).
+INTERIOR_FRACTION = 0.3
 #: Soft tissue between a keypoint (joint centre) and the surface the finger presses, metres.
 PAD_M = 0.009
 
@@ -90,11 +95,15 @@ def hand_cues(keypoints2d, keypoints3d, object_mask=None, hand_mask=None) -> Han
         return None
     z = k3[:, 2] - k3[:, 2].mean()
     front, behind = [], []
-    if object_mask is not None and hand_mask is not None:
+    if object_mask is not None and hand_mask is not None and object_mask.any():
+        from scipy import ndimage
+
         H, W = object_mask.shape
+        dist = ndimage.distance_transform_edt(object_mask)
+        inner = INTERIOR_FRACTION * float(dist.max())
         for i, (u, v) in enumerate(k2):
             r, c = int(np.floor(v)), int(np.floor(u))
-            if not (0 <= r < H and 0 <= c < W) or not object_mask[r, c]:
+            if not (0 <= r < H and 0 <= c < W) or dist[r, c] < max(inner, 1.0):
                 continue
             # the hand seen in a small neighbourhood: in front; else the object hides it
             win = hand_mask[max(r - 1, 0) : r + 2, max(c - 1, 0) : c + 2]
