@@ -20,8 +20,9 @@ def test_adapter_gets_its_model_folder(monkeypatch, tmp_path):
 
     monkeypatch.setattr(chain, "create", fake_create)
     pc = PerceptionConfig(object="depth", depth_dir=str(tmp_path))
-    chain._backend(pc, "object", "depth")
-    assert seen == {"role": "object", "name": "depth", "model_dir": str(tmp_path)}
+    chain._backend(pc, "object", "depth", device="cuda:1")
+    assert seen == {"role": "object", "name": "depth", "model_dir": str(tmp_path),
+                    "device": "cuda:1"}  # fmt: skip
     seen.clear()
     chain._backend(pc, "segmenter", "classical", 7)
     assert seen == {"role": "segmenter", "name": "classical", "seed": 7}  # it takes a seed

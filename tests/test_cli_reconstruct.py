@@ -31,7 +31,9 @@ def _fake_pipeline(monkeypatch) -> dict:
         Path(folder).mkdir(parents=True)
         doc = {"image": str(image), "mean": float(img.rgb.mean())}
         (Path(folder) / "result.json").write_text(json.dumps(doc))
-        return SimpleNamespace(files=[Path(folder) / "result.json"], seconds=0.0)
+        return SimpleNamespace(
+            files=[Path(folder) / "result.json"], seconds=0.0, perception={"notes": []}
+        )
 
     monkeypatch.setattr(pipeline, "reconstruct_photo", reconstruct_photo)
     return seen

@@ -148,7 +148,7 @@ def test_grounded_sam_gets_both_model_folders(monkeypatch, tmp_path):
     pc = PerceptionConfig(segmenter="grounded-sam", detector_dir="/m/owl", sam_dir="/m/sam")
     chain._backend(pc, "segmenter", "grounded-sam", 3)
     assert seen == {"role": "segmenter", "name": "grounded-sam", "detector_dir": "/m/owl",
-                    "sam_dir": "/m/sam"}  # fmt: skip
+                    "sam_dir": "/m/sam", "device": "cpu"}  # fmt: skip
     flags = ["--detector-dir", "/m/owl", "--sam-dir", "/m/sam"]
     args = build_parser().parse_args(["reconstruct", "x.jpg", "--out", str(tmp_path), *flags])
     pc = _config_from_args(args).perception

@@ -245,6 +245,10 @@ def build_app(
             concurrency_limit=1, api_name="reconstruct",
         )  # fmt: skip
     app.easyhoi_work_dir = work
+    if work_dir is None:  # a folder of our own: removed with the app
+        from easyhoi.app_cleanup import remove_on_exit
+
+        remove_on_exit(app, work)
     return app
 
 

@@ -176,15 +176,16 @@ def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
     ``(hand mask, object mask, facts)``; facts holds ``hands_found``, ``hand_index``, ``side``
     and ``confidence`` (mask name -> the JSON form of its MaskConfidence).
     """
+    from easyhoi.device import resolve_device
     from easyhoi.errors import NoHandError, NoObjectError
     from easyhoi.perception.chain import _backend, _prompted, prompted_hand_order
 
     pc = config.perception
     H, W = rgb.shape[:2]
     prompts = None if prompts is None else prompts.check(W, H)
-    seed = config.optim.seed
-    segmenter = _backend(pc, "segmenter", pc.segmenter, seed)
-    hands = _backend(pc, "hand", pc.hand, seed).detect(rgb)
+    seed, device = config.optim.seed, resolve_device(config.device)
+    segmenter = _backend(pc, "segmenter", pc.segmenter, seed, device)
+    hands = _backend(pc, "hand", pc.hand, seed, device).detect(rgb)
     if not hands:
         raise NoHandError("no hand found in the photo")
     segment = _prompted(segmenter, pc.segmenter, prompts)

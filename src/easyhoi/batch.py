@@ -19,7 +19,10 @@ a valid file. The fields of a line::
 
 ``manifest.csv`` (the same fields but ``info``, sorted by ``path``) is written at the end. A run
 without ``resume`` starts a new manifest; with ``resume`` a photo is skipped when its latest ok
-or failed line says ok *and* its output folder exists.
+or failed line says ok *and* its output folder exists, redone when its folder vanished, and
+recorded as ok (``info.recovered``) without running when its folder exists but no line names it
+(a run killed between the two). One run at a time holds the output folder (``wait`` queues
+behind another), and the temporaries of a killed run are swept first (:mod:`easyhoi.batch_lock`).
 
 Output folders mirror the input tree: ``photos/a/IMG_1.jpg`` -> ``out/a/IMG_1/``. Photos of one
 folder that share a stem (``x.jpg``, ``x.png``) get the extension appended (``x_jpg``, ``x_png``).
@@ -27,6 +30,7 @@ folder that share a stem (``x.jpg``, ``x.png``) get the extension appended (``x_
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import io
@@ -304,6 +308,33 @@ class ItemRecord:
         return cls(task.key, task.image, "skipped", None, None, 0, False, 0.0,
                    _rel(task.output, out_dir), task.seed, {})  # fmt: skip
 
+    @classmethod
+    def recovered(cls, task: Task, out_dir: Path) -> ItemRecord:
+        """Record of a photo whose result folder exists but had no manifest line (resume)."""
+        note = "result folder found without a manifest line (its run was killed); kept"
+        return cls(task.key, task.image, "ok", None, None, 0, False, 0.0,
+                   _rel(task.output, out_dir), task.seed, {"recovered": note})  # fmt: skip
+
+
+def _lock_and_sweep(out: Path, outputs: list[str], wait: bool):
+    """Take ``out``'s lock, refuse links in the output paths, sweep a killed run's temporaries."""
+    from easyhoi.batch_lock import OutputLock, check_no_links, sweep_temporaries
+
+    lock = OutputLock(out, wait=wait).acquire()
+    try:
+        check_no_links(out, [*outputs, out / MANIFEST_JSONL, out / MANIFEST_CSV])
+        sweep_temporaries(out)
+    except BaseException:
+        lock.release()
+        raise
+    return lock
+
+
+def _has_files(folder: str | Path) -> bool:
+    """Whether ``folder`` is a folder holding anything (result folders appear only complete)."""
+    p = Path(folder)
+    return p.is_dir() and not p.is_symlink() and any(p.iterdir())
+
 
 def _rel(path: str | Path, base: Path) -> str:
     return Path(os.path.relpath(Path(path), base)).as_posix()
@@ -329,11 +360,17 @@ class ManifestWriter:
     def append(self, record: dict) -> None:
         """Write one JSON object as one line and make it durable."""
         data = (json.dumps(record, ensure_ascii=False, sort_keys=True) + "\n").encode("utf-8")
-        view = memoryview(data)
-        while view:
-            n = os.write(self._fd, view)
-            view = view[n:]
-        os.fsync(self._fd)
+        end = os.lseek(self._fd, 0, os.SEEK_END)
+        try:
+            view = memoryview(data)
+            while view:
+                n = os.write(self._fd, view)
+                view = view[n:]
+            os.fsync(self._fd)
+        except BaseException:  # a full disk mid-line: cut the partial line off again
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, end)
+            raise
 
     def close(self) -> None:
         """Close the file (idempotent)."""
@@ -505,6 +542,7 @@ def run_batch(
     progress: ProgressFn | None = None,
     root: str | Path | None = None,
     threads: int | None = None,
+    wait: bool = False,
 ) -> BatchSummary:
     """Run ``worker`` on every photo; one failing photo never stops the batch.
 
@@ -535,6 +573,9 @@ def run_batch(
         Folder the photo names are relative to (None: the deepest common folder).
     threads : int or None
         Torch threads per worker (None: ``max(1, cores // workers)``).
+    wait : bool
+        When another run holds ``out_dir`` (see :mod:`easyhoi.batch_lock`), wait for it
+        instead of refusing.
 
     Returns
     -------
@@ -543,7 +584,10 @@ def run_batch(
     Raises
     ------
     InvalidInputError
-        Bad engine/worker count, unpicklable worker, or ``out_dir`` is a file.
+        Bad engine/worker count, unpicklable worker, ``out_dir`` is a file, or an output path
+        passes through a symbolic link inside ``out_dir``.
+    OutputBusyError
+        Another run holds ``out_dir`` (and ``wait`` is off).
     MissingDependencyError
         ``engine="ray"`` without Ray.
     """
@@ -554,9 +598,10 @@ def run_batch(
     tasks = plan_tasks(images, out, seed=seed, root=root)
     out.mkdir(parents=True, exist_ok=True)
     manifest = out / MANIFEST_JSONL
+    lock = _lock_and_sweep(out, [t.output for t in tasks], wait)
     done_before = _finished(read_manifest(manifest)) if resume else {}
 
-    todo, skipped = [], []
+    todo, skipped, recovered = [], [], []
     for t in tasks:
         prev = done_before.get(t.key)
         if prev is not None and prev["status"] == "ok" and Path(t.output).is_dir():
@@ -564,6 +609,8 @@ def run_batch(
                 logger.warning("%s: finished with seed %s, now %s; kept", t.key, prev.get("seed"),
                                t.seed)  # fmt: skip
             skipped.append(t)
+        elif resume and prev is None and _has_files(t.output):
+            recovered.append(t)  # finished by a run killed before its manifest line
         else:
             todo.append(t)
 
@@ -571,12 +618,21 @@ def run_batch(
     records: list[ItemRecord] = []
     total = len(tasks)
     # validate engine options before touching the manifest
-    results = execute(todo, worker, engine=engine, workers=workers, threads=threads,
-                      ray_address=ray_address)  # fmt: skip
+    try:
+        results = execute(todo, worker, engine=engine, workers=workers, threads=threads,
+                          ray_address=ray_address)  # fmt: skip
+    except BaseException:
+        lock.release()
+        raise
     with ManifestWriter(manifest, fresh=not resume) as writer:
         try:
             for t in skipped:
                 records.append(ItemRecord.skipped(t, out))
+                writer.append(records[-1].to_dict())
+                if progress is not None:
+                    progress(records[-1], len(records), total)
+            for t in recovered:
+                records.append(ItemRecord.recovered(t, out))
                 writer.append(records[-1].to_dict())
                 if progress is not None:
                     progress(records[-1], len(records), total)
@@ -589,6 +645,7 @@ def run_batch(
             if hasattr(results, "close"):
                 results.close()
             write_manifest_csv(out / MANIFEST_CSV, records)
+            lock.release()
     return BatchSummary(
         records=tuple(sorted(records, key=lambda r: r.path)),
         seconds=time.perf_counter() - t0,
@@ -618,7 +675,7 @@ def summarize_photo(task: Task) -> dict:
     """
     import numpy as np
 
-    from easyhoi.io.atomic import atomic_write_text
+    from easyhoi.io.atomic import atomic_write_text, publish_folder
     from easyhoi.io.image import load_image
 
     img = load_image(task.image)
@@ -633,9 +690,8 @@ def summarize_photo(task: Task) -> dict:
         "probe": img.rgb[ys, xs].astype(int).tolist(),
         "seed": int(task.seed),
     }
-    out = Path(task.output)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, sort_keys=True))
+    text = json.dumps(summary, indent=1, sort_keys=True)
+    publish_folder(task.output, lambda tmp: atomic_write_text(tmp / "summary.json", text))
     return {"format": summary["format"], "width": summary["width"], "height": summary["height"]}
 
 
@@ -656,6 +712,18 @@ class ReconstructWorker:
         self.settings = settings
         self.prompts = dict(prompts or {})
         self.strict = bool(strict)
+
+    @property
+    def device(self) -> str:
+        """The device the photos run on ("cpu", "cuda", ...; Ray asks for GPUs by it)."""
+        from easyhoi.config import get_preset
+        from easyhoi.device import resolve_device
+        from easyhoi.settings import RunSettings
+
+        if isinstance(self.settings, RunSettings):
+            return self.settings.device
+        cfg = get_preset() if self.settings is None else self.settings
+        return resolve_device(cfg.device)
 
     def __call__(self, task: Task) -> dict:
         """Reconstruct one photo into ``task.output``.

@@ -11,7 +11,13 @@ import sys
 from pathlib import Path
 
 from easyhoi import __version__
-from easyhoi.errors import EXIT_CODE_MEANINGS, EasyHOIError, ExitCode, InvalidInputError
+from easyhoi.errors import (
+    EXIT_CODE_MEANINGS,
+    EasyHOIError,
+    ExitCode,
+    InvalidInputError,
+    as_resource_error,
+)
 
 logger = logging.getLogger("easyhoi")
 
@@ -139,6 +145,7 @@ def cmd_batch(args) -> int:
     from easyhoi.batch import discover_images
 
     folder = Path(args.folder)
+    _check_out_dir(Path(args.out))
     images = discover_images(folder, recursive=args.recursive, exclude=[args.out])
     if not images:
         hint = "" if args.recursive else " (add --recursive to include subfolders)"
@@ -182,7 +189,7 @@ def _run_batch(args, images: list[Path], root: Path | None, run, prompts=None) -
             images, args.out, worker, engine=getattr(args, "engine", "inline"),
             workers=getattr(args, "workers", 1), resume=getattr(args, "resume", False),
             seed=run.seed, ray_address=getattr(args, "ray_address", None),
-            progress=progress, root=root,
+            progress=progress, root=root, wait=getattr(args, "wait", False),
         )  # fmt: skip
     finally:
         bar.close()
@@ -307,6 +314,8 @@ def _config_from_args(args):
 
     cfg = get_preset(args.preset)
     cfg = replace(cfg, hand_model=args.hand_model, mano_dir=args.mano_dir)
+    if getattr(args, "device", None):
+        cfg = replace(cfg, device=args.device)
     perception = {
         "hand": args.hand_backend, "segmenter": args.segmenter, "inpainter": args.inpainter,
         "amodal": args.amodal, "object": args.object_backend,
@@ -366,15 +375,9 @@ def _tell_perception(args, image, perception: dict, prompts=None) -> None:
 
 def _check_out_dir(out: Path) -> None:
     """Refuse an output folder that can never be written before any work is done."""
-    import os
+    from easyhoi.limits import check_output_folder
 
-    p = out
-    while not p.exists() and p != p.parent:
-        p = p.parent
-    if not p.is_dir():
-        raise InvalidInputError(f"cannot write to --out {out}: {p} exists and is not a folder")
-    if not os.access(p, os.W_OK | os.X_OK):
-        raise InvalidInputError(f"cannot write to --out {out}: no write permission on {p}")
+    check_output_folder(out)
 
 
 def _provided_from_args(args):
@@ -477,6 +480,12 @@ def _add_model_options(p: argparse.ArgumentParser) -> None:
                    help="folder or path of MANO_RIGHT.pkl (or set EASYHOI_MANO_DIR)")  # fmt: skip
 
 
+def _add_device_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--device", default=None, metavar="{auto,cpu,cuda,cuda:N}",
+                   help="where the optimizer and large models run (default: config 'device', "
+                        "auto = cuda when torch sees a GPU)")  # fmt: skip
+
+
 def _set_torch_threads() -> None:
     """One torch thread unless EASYHOI_TORCH_THREADS says otherwise.
 
@@ -528,6 +537,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
     p.add_argument("--seed", type=int, default=None, help=_SEED_HELP)
     _add_model_options(p)
+    _add_device_option(p)
     for flag, role in (("--hand-backend", "hand"), ("--segmenter", "segmenter"),
                        ("--inpainter", "inpainter"), ("--amodal", "amodal"),
                        ("--object-backend", "object")):  # fmt: skip
@@ -569,9 +579,12 @@ def build_parser() -> argparse.ArgumentParser:
                    "hand_point}} or CSV photo,kind,x,y[,x1,y1]")  # fmt: skip
     p.add_argument("--strict", action="store_true",
                    help="a photo with a low-confidence mask fails (exit 9)")  # fmt: skip
+    p.add_argument("--wait", action="store_true",
+                   help="if another run uses --out, wait for it (default: exit 11)")  # fmt: skip
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
     p.add_argument("--seed", type=int, default=None, help=_SEED_HELP)
     _add_model_options(p)
+    _add_device_option(p)
     for flag, role in (("--hand-backend", "hand"), ("--segmenter", "segmenter"),
                        ("--inpainter", "inpainter"), ("--amodal", "amodal"),
                        ("--object-backend", "object")):  # fmt: skip
@@ -589,6 +602,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", default="fast", help="optimizer preset: fast (default) or paper")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="config override")
     _add_model_options(p)
+    _add_device_option(p)
     for flag in ("--hand-backend", "--segmenter", "--inpainter", "--amodal", "--object-backend"):
         p.add_argument(flag, default=None, help=argparse.SUPPRESS)
     _add_common(p)
@@ -668,6 +682,9 @@ def main(argv: list[str] | None = None) -> int:
         _err("interrupted")
         return int(ExitCode.INTERRUPTED)
     except Exception as exc:  # noqa: BLE001 - last line of defence: no traceback for users
+        if (res := as_resource_error(exc)) is not None:  # disk full, out of memory
+            _err(f"error: {type(res).__name__}: {res}")
+            return int(res.exit_code)
         if args.verbose:
             logger.exception("internal error")
         _err(f"internal error: {type(exc).__name__}: {exc} (rerun with --verbose for details)")

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, fields, is_dataclass, replace
 from functools import cache
 from typing import Any
 
+from easyhoi.device import check_device_name
 from easyhoi.errors import InvalidInputError
 
 __all__ = [
@@ -392,6 +393,9 @@ class EasyHOIConfig:
     """Folder holding MANO_RIGHT.pkl (and MANO_LEFT.pkl); used when hand_model is "mano"."""
     name: str = "custom"
     """Name of the preset this configuration came from (provenance only)."""
+    device: str = "auto"
+    """Where tensors and large models run: "cpu", "cuda" (or "cuda:N"), or "auto" (cuda when
+    torch sees a GPU, else cpu); resolved once by :func:`easyhoi.settings.resolve_run`."""
 
     def __post_init__(self):
         _finite(self)
@@ -399,6 +403,7 @@ class EasyHOIConfig:
             raise InvalidInputError(
                 f"hand_model must be one of {_HAND_MODELS}, got {self.hand_model!r}"
             )
+        check_device_name(self.device)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -588,7 +593,10 @@ def with_overrides(cfg, overrides: dict[str, Any]):
             names = ", ".join(f.name for f in fields(parent)) if is_dataclass(parent) else "none"
             raise InvalidInputError(f"unknown config field {path!r} (fields here: {names})")
         new = _coerce(value, _hints(type(parent))[leaf], path)
-        cfg = _set(cfg, parts, new)
+        try:
+            cfg = _set(cfg, parts, new)
+        except InvalidInputError as exc:  # the value check of the dataclass: name the key
+            raise InvalidInputError(f"{path}={value!r} refused: {exc}") from None
     return cfg
 
 

@@ -22,7 +22,9 @@ Engines (:func:`execute` yields results in completion order):
     without an address a local cluster bound to 127.0.0.1 with ``num_cpus=workers`` and no
     dashboard is started (and shut down afterwards); all its processes listen on the loopback
     interface only. Results are collected with ``ray.wait`` as they finish. A Ray session that
-    is already initialised is reused and left running.
+    is already initialised is reused and left running. A worker whose ``device`` attribute
+    names a CUDA device asks Ray for GPUs (:func:`gpu_share`): one each when the cluster has
+    as many GPUs as workers, else an equal share of them, so the workers share the GPUs.
 ``"inline"``
     Sequentially in the calling process (debugging; no isolation, no thread change).
 
@@ -50,6 +52,7 @@ from easyhoi.errors import (
     ExitCode,
     InvalidInputError,
     MissingDependencyError,
+    as_resource_error,
 )
 
 __all__ = [
@@ -59,6 +62,7 @@ __all__ = [
     "TaskResult",
     "available_cores",
     "execute",
+    "gpu_share",
     "run_task",
     "threads_per_worker",
 ]
@@ -149,7 +153,30 @@ def _set_threads(threads: int | None) -> None:
         torch.set_num_threads(threads)
 
 
+def gpu_share(total_gpus: float, workers: int) -> float:
+    """GPUs each Ray task asks for: one each when there are enough, else an equal share.
+
+    ``min(1, total_gpus / workers)``: 4 workers on 1 GPU take 0.25 each (Ray runs all four on
+    it at once), 4 workers on 8 GPUs take one each.
+
+    Raises:
+        InvalidInputError: the cluster has no GPU (tasks asking for one would never start).
+    """
+    if not total_gpus > 0:
+        raise InvalidInputError(
+            "the run's device is cuda but the Ray cluster has no GPU; use --device cpu or a "
+            "cluster with GPUs"
+        )
+    return min(1.0, float(total_gpus) / max(1, int(workers)))
+
+
+def _uses_gpu(worker) -> bool:
+    """True when the worker runs on a CUDA device (its ``device`` attribute, if any)."""
+    return str(getattr(worker, "device", "cpu")).startswith("cuda")
+
+
 def _failure(key: str, exc: BaseException, seconds: float) -> TaskResult:
+    exc = as_resource_error(exc) or exc  # a full disk or no memory is not a bug
     if isinstance(exc, EasyHOIError):
         return TaskResult(key, "failed", seconds, type(exc).__name__, str(exc), exc.exit_code)
     return TaskResult(
@@ -265,8 +292,17 @@ def _new_pool(workers: int, threads: int, mp_context: str) -> ProcessPoolExecuto
         # imported once by the fork server (only applies when it starts)
         ctx.set_forkserver_preload(["easyhoi.distributed"])
     return ProcessPoolExecutor(
-        max_workers=workers, mp_context=ctx, initializer=_set_threads, initargs=(threads,)
-    )
+        max_workers=workers, mp_context=ctx, initializer=_init_worker,
+        initargs=(threads, os.getpid()),
+    )  # fmt: skip
+
+
+def _init_worker(threads: int | None, batch_pid: int) -> None:
+    """Worker start: end with the batch process (see :mod:`easyhoi.process_guard`), threads."""
+    from easyhoi.process_guard import die_with
+
+    die_with(batch_pid)
+    _set_threads(threads)
 
 
 def _iter_local(
@@ -402,7 +438,8 @@ def _iter_ray(
 ) -> Iterator[TaskResult]:
     started = _ray_init(ray, workers, address)
     try:
-        remote = ray.remote(num_cpus=1, max_retries=1)(run_task)
+        gpus = gpu_share(ray.cluster_resources().get("GPU", 0), workers) if _uses_gpu(worker) else 0
+        remote = ray.remote(num_cpus=1, num_gpus=gpus, max_retries=1)(run_task)
         worker_ref = ray.put(worker)
         refs = {remote.remote(worker_ref, t, threads): t for t in tasks}
         waiting = list(refs)

@@ -7,6 +7,8 @@ the exit code the command line returns for it; :class:`ExitCode` is the one tabl
 
 from __future__ import annotations
 
+import errno
+import os
 from enum import IntEnum
 
 __all__ = [
@@ -14,13 +16,17 @@ __all__ = [
     "BackendError",
     "EasyHOIError",
     "ExitCode",
+    "InputTooLargeError",
     "InvalidInputError",
     "LowConfidenceError",
     "MissingDependencyError",
     "NoHandError",
     "NoObjectError",
     "OptimizationError",
+    "OutputBusyError",
+    "ResourceError",
     "UnsafeFileError",
+    "as_resource_error",
     "exit_code_of",
     "require",
 ]
@@ -39,6 +45,8 @@ class ExitCode(IntEnum):
     OPTIMIZATION = 7
     BATCH_PARTIAL = 8
     LOW_CONFIDENCE = 9
+    RESOURCE = 10
+    OUTPUT_BUSY = 11
     INTERNAL = 70  # EX_SOFTWARE of sysexits.h
     INTERRUPTED = 130  # 128 + SIGINT, as shells report a Ctrl-C
 
@@ -55,6 +63,8 @@ EXIT_CODE_MEANINGS: dict[ExitCode, str] = {
     ExitCode.OPTIMIZATION: "the optimizer could not produce a valid result",
     ExitCode.BATCH_PARTIAL: "some photos of a batch failed (see its manifest)",
     ExitCode.LOW_CONFIDENCE: "--strict and a mask has low confidence (nothing written)",
+    ExitCode.RESOURCE: "out of a resource: disk full, out of memory, or an input too large",
+    ExitCode.OUTPUT_BUSY: "the output folder is in use by another easyhoi run",
     ExitCode.INTERNAL: "internal error, a bug: please report it with the --verbose output",
     ExitCode.INTERRUPTED: "interrupted (Ctrl-C)",
 }
@@ -66,7 +76,36 @@ def exit_code_of(exc: BaseException) -> ExitCode:
         return ExitCode(exc.exit_code)
     if isinstance(exc, KeyboardInterrupt):
         return ExitCode.INTERRUPTED
+    if as_resource_error(exc) is not None:
+        return ExitCode.RESOURCE
     return ExitCode.INTERNAL
+
+
+#: errno values that mean the machine ran out of something, not that the input is wrong.
+_RESOURCE_ERRNOS = frozenset(
+    getattr(errno, name) for name in ("ENOSPC", "EDQUOT", "EFBIG", "ENOMEM") if hasattr(errno, name)
+)
+
+
+def as_resource_error(exc: BaseException) -> ResourceError | None:
+    """A :class:`ResourceError` for a full disk, exhausted memory or a too large image, else None.
+
+    ``OSError`` with errno ENOSPC/EDQUOT/EFBIG/ENOMEM, ``MemoryError`` and Pillow's
+    ``DecompressionBombError`` are ordinary conditions of the machine or the input, not bugs;
+    the CLI and the batch runner report them with :attr:`ExitCode.RESOURCE` instead of
+    :attr:`ExitCode.INTERNAL`.
+    """
+    if isinstance(exc, ResourceError):
+        return exc
+    if type(exc).__name__ == "DecompressionBombError":  # Pillow's, from a path that skipped
+        return InputTooLargeError(f"image too large: {exc}")  # easyhoi.limits' header check
+    if isinstance(exc, MemoryError):
+        return ResourceError(f"out of memory ({exc or 'MemoryError'})")
+    if isinstance(exc, OSError) and exc.errno in _RESOURCE_ERRNOS:
+        where = f": {exc.filename}" if exc.filename else ""
+        what = "disk full" if exc.errno != getattr(errno, "ENOMEM", None) else "out of memory"
+        return ResourceError(f"{what} ({os.strerror(exc.errno)}{where})")
+    return None
 
 
 class EasyHOIError(Exception):
@@ -126,6 +165,26 @@ class LowConfidenceError(EasyHOIError):
     """Perception is unsure of a mask and the caller asked for certainty (``--strict``)."""
 
     exit_code = ExitCode.LOW_CONFIDENCE
+
+
+class ResourceError(EasyHOIError, RuntimeError):
+    """The machine ran out of something: disk space, memory, or the input exceeds a size limit."""
+
+    exit_code = ExitCode.RESOURCE
+
+
+class InputTooLargeError(ResourceError, InvalidInputError):
+    """An input (photo pixels, file bytes, mesh faces) exceeds its documented limit.
+
+    Exit code ``RESOURCE`` (the machine could not afford it); also an
+    :class:`InvalidInputError`, so every handler of bad input reports it as one.
+    """
+
+
+class OutputBusyError(EasyHOIError):
+    """Another easyhoi run holds the lock of the output folder."""
+
+    exit_code = ExitCode.OUTPUT_BUSY
 
 
 def require(module: str, extra: str | None = None, purpose: str = ""):

@@ -81,7 +81,9 @@ def reconstruct_photo(
 
         prompted = given is not None and given.has_object_prompt
         raise low_confidence_error(report.to_dict(), prompted)
-    result = optimize(inp, run.config.optim, hand_model=run.hand_model, progress=progress)
+    result = optimize(
+        inp, run.config.optim, hand_model=run.hand_model, progress=progress, device=run.device
+    )
     files = []
     if folder is not None:
         from easyhoi.result_folder import write_result_folder

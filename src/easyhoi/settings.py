@@ -13,13 +13,10 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from easyhoi.config import EasyHOIConfig, get_preset, with_overrides
+from easyhoi.device import DEVICES, resolve_device
 from easyhoi.errors import InvalidInputError
 
 __all__ = ["DEVICES", "RunSettings", "resolve_run"]
-
-#: Devices a run can use. Everything runs on the CPU; the field exists so that a GPU path can be
-#: chosen here, in one place, without changing the callers.
-DEVICES = ("cpu",)
 
 
 @dataclass(frozen=True)
@@ -31,7 +28,9 @@ class RunSettings:
         hand_model: The hand model instance (``config.hand_model``, in ``config.optim.dtype``),
             shared by perception, the optimizer and the pictures. Models are stateless layers,
             so one instance serves any number of photos.
-        device: Where tensors live (one of :data:`DEVICES`).
+        device: Where tensors and large models live: "cpu", "cuda" or "cuda:N", already
+            resolved ("auto" never appears here). The hand model stays on the CPU (perception
+            fits it there); the optimizer works on its own copy on this device.
     """
 
     config: EasyHOIConfig
@@ -53,7 +52,7 @@ def resolve_run(
     *,
     seed: int | None = None,
     hand_model=None,
-    device: str = "cpu",
+    device: str | None = None,
 ) -> RunSettings:
     """Resolve a run's settings once.
 
@@ -62,13 +61,15 @@ def resolve_run(
         seed: Replaces ``config.optim.seed`` when given (None: keep the configuration's seed).
         hand_model: An already loaded hand model to use (None: load ``config.hand_model`` from
             ``config.mano_dir``, in ``config.optim.dtype``).
-        device: One of :data:`DEVICES`.
+        device: "cpu", "cuda", "cuda:N" or "auto" (cuda when torch sees a GPU); None uses
+            ``config.device``. Resolved here, once (:func:`easyhoi.device.resolve_device`).
 
     Returns:
         The resolved :class:`RunSettings`.
 
     Raises:
-        InvalidInputError: A bad seed or device, or an unknown hand model.
+        InvalidInputError: A bad seed or device, cuda asked for where torch sees no GPU, or an
+            unknown hand model.
         MANONotFoundError: ``config.hand_model`` is "mano" and no MANO file is found.
         UnsafeFileError: The MANO file holds content that is refused.
     """
@@ -77,8 +78,7 @@ def resolve_run(
         raise InvalidInputError(f"config must be an EasyHOIConfig, got {type(cfg).__name__}")
     if seed is not None:
         cfg = with_overrides(cfg, {"optim.seed": seed})
-    if device not in DEVICES:
-        raise InvalidInputError(f"device must be one of {DEVICES}, got {device!r}")
+    device = resolve_device(cfg.device if device is None else device)
     if hand_model is None:
         from easyhoi.hand import load_hand_model
 

@@ -118,13 +118,20 @@ class Camera:
         t=None,
         principal: tuple[float, float] | None = None,
         dtype: torch.dtype = torch.float32,
+        device=None,
     ) -> Camera:
-        """Camera with focal length(s) in pixels; principal point at the image centre by default."""
+        """Camera with focal length(s) in pixels; principal point at the image centre by default.
+
+        ``device``: where its tensors live (None: the CPU, or where ``R`` and ``t`` are).
+        """
         fx, fy = (focal, focal) if np.isscalar(focal) else focal
         cx, cy = principal if principal is not None else (width / 2.0, height / 2.0)
-        K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=dtype)
-        R = torch.eye(3, dtype=dtype) if R is None else _as_tensor(R, dtype=dtype)
-        t = torch.zeros(3, dtype=dtype) if t is None else _as_tensor(t, dtype=dtype)
+        kw = dict(dtype=dtype, device=device)
+        K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], **kw)
+        R = torch.eye(3, **kw) if R is None else _as_tensor(R, **kw)
+        t = torch.zeros(3, **kw) if t is None else _as_tensor(t, **kw)
+        if device is None:
+            K = K.to(R.device)
         return cls(K, R, t, width, height)
 
     @classmethod
@@ -246,8 +253,8 @@ class Camera:
         """(H, W, 2) pixel-centre coordinates (u, v)."""
         dtype = dtype or self.K.dtype
         v, u = torch.meshgrid(
-            torch.arange(self.height, dtype=dtype) + 0.5,
-            torch.arange(self.width, dtype=dtype) + 0.5,
+            torch.arange(self.height, dtype=dtype, device=self.K.device) + 0.5,
+            torch.arange(self.width, dtype=dtype, device=self.K.device) + 0.5,
             indexing="ij",
         )
         return torch.stack([u, v], dim=-1)
@@ -255,7 +262,7 @@ class Camera:
     def resized(self, width: int, height: int) -> Camera:
         """The same camera for an image resampled to ``width`` x ``height``."""
         sx, sy = width / self.width, height / self.height
-        S = torch.diag(torch.tensor([sx, sy, 1.0], dtype=self.K.dtype))
+        S = torch.diag(torch.tensor([sx, sy, 1.0], dtype=self.K.dtype, device=self.K.device))
         return replace(self, K=S @ self.K, width=width, height=height)
 
     def detach(self) -> Camera:

@@ -282,9 +282,9 @@ def build_sdf_grid(
         voxel = 2.0 * half / (resolution - 1)
         values = _banded_values(axes, voxel, float(exact_band) * voxel, v, f, normals)[0]
     return SDFGrid(
-        values=torch.as_tensor(values, dtype=dtype),
-        bounds_min=torch.as_tensor(bmin, dtype=dtype),
-        bounds_max=torch.as_tensor(bmax, dtype=dtype),
+        values=torch.as_tensor(values, dtype=dtype, device="cpu"),  # built here; SDFGrid.to moves
+        bounds_min=torch.as_tensor(bmin, dtype=dtype, device="cpu"),
+        bounds_max=torch.as_tensor(bmax, dtype=dtype, device="cpu"),
         resolution=resolution,
     )
 

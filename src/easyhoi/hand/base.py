@@ -14,7 +14,7 @@ negated); faces of a left hand have reversed winding so normals still point outw
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import torch
 from torch import nn
@@ -147,6 +147,25 @@ class HandModel(nn.Module, ABC):
             object.__setattr__(self, "_regions", cached)
         return cached
 
+    def on_device(self, device) -> HandModel:
+        """This model when its buffers are already on ``device``, else a copy moved there.
+
+        A copy, not ``.to()`` in place: the CPU instance is shared (perception fits the hand
+        on the CPU, built-in models are cached). The copy's regions are moved with it.
+        """
+        device = torch.device(device)
+        if self.faces.device == device:
+            return self
+        import copy
+
+        regions = self.regions
+        moved = copy.deepcopy(self).to(device)
+        object.__setattr__(moved, "_joint_blend", None)
+        object.__setattr__(moved, "_regions", HandRegions(
+            *(getattr(regions, f.name).to(device) for f in fields(HandRegions))
+        ))  # fmt: skip
+        return moved
+
     def faces_for(self, side: str) -> torch.Tensor:
         """(F, 3) faces with outward winding for a ``side`` hand."""
         return self.faces if side == "right" else self.faces[:, [0, 2, 1]]
@@ -172,7 +191,7 @@ class HandModel(nn.Module, ABC):
         n_tips = len(tip_ids)
         if vertex_ids is None:
             v_rest, j_rest = self.shaped(betas)
-            ids = torch.cat([tip_ids, torch.arange(v_rest.shape[1])])
+            ids = torch.cat([tip_ids, torch.arange(v_rest.shape[1], device=tip_ids.device)])
             v_rest = v_rest[:, ids]
         else:
             ids = torch.cat([tip_ids, vertex_ids.to(torch.long)])

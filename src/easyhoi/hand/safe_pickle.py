@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from easyhoi.errors import InvalidInputError, UnsafeFileError
+from easyhoi.errors import InputTooLargeError, InvalidInputError, UnsafeFileError
 
 __all__ = ["load_mano_pickle", "RestrictedUnpickler", "ChumpyStandIn"]
 
@@ -245,7 +245,7 @@ def read_pickle_bytes(path: Path, what: str = "pickle") -> bytes:
     try:
         size = path.stat().st_size
         if size > MAX_PICKLE_BYTES:
-            raise InvalidInputError(
+            raise InputTooLargeError(
                 f"{path} is {size / 2**20:.0f} MiB; a {what} larger than "
                 f"{MAX_PICKLE_BYTES // 2**20} MiB is refused"
             )

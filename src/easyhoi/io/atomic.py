@@ -118,4 +118,7 @@ def _swap_into_place(tmp: Path, final: Path) -> None:
         with contextlib.suppress(OSError):
             old.rename(final)
         raise
-    shutil.rmtree(old, ignore_errors=True)
+    if old.is_symlink():  # a link replaced by the new folder: remove the link, not its target
+        old.unlink()
+    else:
+        shutil.rmtree(old, ignore_errors=True)

@@ -10,6 +10,7 @@ pixel coordinates can be mapped back to the original file (``u_original = u / sc
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -64,16 +65,15 @@ def check_image(image: np.ndarray, name: str = "image") -> np.ndarray:
 def _open(path: str | Path):
     from PIL import Image, UnidentifiedImageError
 
+    from easyhoi.limits import check_image_header
+
     p = Path(path)
-    if not p.exists():
-        raise InvalidInputError(f"image file not found: {p}")
-    if not p.is_file():
-        raise InvalidInputError(f"image path is not a file: {p}")
-    if p.stat().st_size == 0:
-        raise InvalidInputError(f"image file is empty (0 bytes): {p}")
+    check_image_header(p)  # missing, empty, too many bytes or pixels: refused before decoding
     try:
-        img = Image.open(p)
-        img.load()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            img = Image.open(p)
+            img.load()
     except UnidentifiedImageError as exc:
         raise InvalidInputError(
             f"cannot read {p}: not an image in a supported format (JPEG, PNG, WebP, BMP, TIFF...)"

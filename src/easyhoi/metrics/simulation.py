@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from easyhoi.errors import BackendError, InvalidInputError
+from easyhoi.errors import BackendError, InvalidInputError, require
 from easyhoi.metrics._common import M_TO_CM, as_mesh, to_numpy
 
 logger = logging.getLogger(__name__)
@@ -104,6 +104,20 @@ class SimResult:
     settings: dict = field(default_factory=dict)
 
 
+def _pybullet():
+    """The pybullet module, or MissingDependencyError saying how to get it.
+
+    pybullet publishes no wheel for Python 3.12 and later, so it is a dependency only below
+    3.12; there ``pip install 'easyhoi[sim]'`` builds it from source (a C++ compiler is needed).
+    """
+    return require(
+        "pybullet",
+        extra="sim",
+        purpose="the simulation displacement metric (S.D.); from Python 3.12 on it is built from "
+        "source, which needs a C++ compiler",
+    )
+
+
 def default_cache_dir() -> Path:
     """``$EASYHOI_CACHE/vhacd`` when set, else ``~/.cache/easyhoi/vhacd``."""
     root = os.environ.get("EASYHOI_CACHE")
@@ -162,7 +176,7 @@ def convex_decomposition(
     Returns:
         Decomposition
     """
-    import pybullet as p
+    p = _pybullet()
 
     t0 = time.perf_counter()
     params = params or VHACDParams()
@@ -251,7 +265,7 @@ def simulation_displacement(
     Returns:
         SimResult: ``displacement`` in cm.
     """
-    import pybullet as p
+    p = _pybullet()
 
     steps = int(steps)
     if steps < 0:

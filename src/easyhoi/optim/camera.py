@@ -171,12 +171,12 @@ def initial_camera(
     H, W = scene.image_size
     focal = 0.5 * H / math.tan(math.radians(cfg.init_fov_deg) / 2.0)
     principal = (W / 2.0, H / 2.0)
-    verts = scene.object_verts.detach().double().numpy()
-    c = scene.center.detach().double().numpy()
+    verts = scene.object_verts.detach().double().cpu().numpy()
+    c = scene.center.detach().double().cpu().numpy()
     dtype = scene.dtype
     if not cfg.init_from_masks:
         t = np.array([0.0, 0.0, cfg.init_distance]) - c
-        cam = Camera.from_focal(focal, W, H, R=np.eye(3), t=t, dtype=dtype)
+        cam = Camera.from_focal(focal, W, H, R=np.eye(3), t=t, dtype=dtype, device=scene.device)
         return cam, {"init": "default", "distance": cfg.init_distance}
     box = _mask_box(np.asarray(amodal_mask, dtype=bool))
     h, w = scene.render_size(cfg.resolution_schedule[0], render_size)
@@ -184,7 +184,7 @@ def initial_camera(
     best, notes = None, []
     for label, R in candidate_rotations(cfg.init_rotations):
         t = fit_box(verts, R, focal, principal, box, c)
-        cam = Camera.from_focal(focal, W, H, R=R, t=t, dtype=dtype)
+        cam = Camera.from_focal(focal, W, H, R=R, t=t, dtype=dtype, device=scene.device)
         with torch.no_grad():
             sil = soft_silhouette(
                 scene.object_verts, scene.object_faces, cam.resized(w, h), SILHOUETTE_SIGMA
@@ -200,13 +200,13 @@ class _CameraParams:
     """Residual parameters around an initial camera (see the module docstring)."""
 
     def __init__(self, cam0: Camera, center: torch.Tensor, extent: float, optimise_focal: bool):
-        dt = cam0.K.dtype
+        dt, dev = cam0.K.dtype, cam0.K.device
         self.cam0 = cam0.detach()
         self.center = center.to(dt)
         self.extent = float(extent)
-        self.log_f = torch.zeros(2, dtype=dt, requires_grad=optimise_focal)
-        self.r = torch.zeros(3, dtype=dt, requires_grad=True)
-        self.delta = torch.zeros(3, dtype=dt, requires_grad=True)
+        self.log_f = torch.zeros(2, dtype=dt, device=dev, requires_grad=optimise_focal)
+        self.r = torch.zeros(3, dtype=dt, device=dev, requires_grad=True)
+        self.delta = torch.zeros(3, dtype=dt, device=dev, requires_grad=True)
 
     def tensors(self) -> list[torch.Tensor]:
         return [p for p in (self.log_f, self.r, self.delta) if p.requires_grad]
@@ -215,7 +215,7 @@ class _CameraParams:
         c0 = self.cam0
         f0 = c0.K.diagonal()[:2]
         df = f0 * torch.expm1(self.log_f)
-        K = c0.K + torch.diag(torch.cat([df, torch.zeros(1, dtype=df.dtype)]))
+        K = c0.K + torch.diag(torch.cat([df, df.new_zeros(1)]))
         R = axis_angle_to_matrix(self.r) @ c0.R
         t = c0.t + c0.R @ self.center - R @ self.center + self.extent * self.delta
         return Camera(K, R, t, c0.width, c0.height)

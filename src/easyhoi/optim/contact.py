@@ -79,8 +79,9 @@ MAX_SCALE_STEP = 2.0
 
 def _origin_camera(camera: Camera) -> Camera:
     """The same intrinsics with identity extrinsics (to work in the camera's own frame)."""
-    dt = camera.K.dtype
-    return Camera(camera.K.detach(), torch.eye(3, dtype=dt), torch.zeros(3, dtype=dt),
+    dt, dev = camera.K.dtype, camera.K.device
+    return Camera(camera.K.detach(), torch.eye(3, dtype=dt, device=dev),
+                  torch.zeros(3, dtype=dt, device=dev),
                   camera.width, camera.height)  # fmt: skip
 
 
@@ -96,8 +97,8 @@ class ContactState:
             self.v0 = scene.hand_model(self.params_cam).vertices[0]
         self.c0 = self.v0.mean(0)
         self.L = float((self.v0.max(0).values - self.v0.min(0).values).max())
-        self.r = torch.zeros(3, dtype=dt, requires_grad=True)
-        self.delta = torch.zeros(3, dtype=dt, requires_grad=True)
+        self.r = torch.zeros(3, dtype=dt, device=scene.device, requires_grad=True)
+        self.delta = torch.zeros(3, dtype=dt, device=scene.device, requires_grad=True)
         self.m = float(metric_scale)
 
     def verts_cam(self) -> torch.Tensor:
@@ -129,8 +130,8 @@ class ContactState:
 
     def apply_translation(self, D: np.ndarray, anchor: np.ndarray, use_scale: bool) -> dict:
         """Move the hand so the object-frame point ``anchor`` goes to ``anchor + D``."""
-        R = self.camera.R.detach().double().numpy()
-        t = self.camera.t.detach().double().numpy()
+        R = self.camera.R.detach().double().cpu().numpy()
+        t = self.camera.t.detach().double().cpu().numpy()
         q = R @ anchor + t
         q_new = R @ (anchor + D) + t
         k = 1.0
@@ -139,7 +140,8 @@ class ContactState:
         self.m = self.m / k
         shift = (q_new - k * q) * self.m  # metres, object camera frame
         with torch.no_grad():
-            self.delta += torch.as_tensor(shift / self.L, dtype=self.delta.dtype)
+            self.delta += torch.as_tensor(shift / self.L, dtype=self.delta.dtype,
+                                          device=self.delta.device)  # fmt: skip
         return {"scale_factor": 1.0 / k, "shift_m": float(np.linalg.norm(shift))}
 
 
@@ -232,13 +234,14 @@ def initial_hand(
     """
     cfg = ContactStageConfig() if cfg is None else cfg
     model = scene.hand_model
-    dt = scene.dtype
-    p_hc = hand_in_camera(inp.hand_params.to(dtype=dt), inp.hand_camera.to(dt), model)
+    dt, dev = scene.dtype, scene.device
+    hand_camera = inp.hand_camera.to(dt, dev)
+    p_hc = hand_in_camera(inp.hand_params.to(dtype=dt, device=dev), hand_camera, model)
     with torch.no_grad():
         c = model(p_hc).vertices[0].mean(0)
-    Kh, Ko = inp.hand_camera.K.to(dt), camera.K.detach().to(dt)
+    Kh, Ko = hand_camera.K, camera.K.detach().to(dt)
     k = math.sqrt(float(Ko[0, 0] * Ko[1, 1]) / float(Kh[0, 0] * Kh[1, 1]))
-    cam_h0, cam_o0 = _origin_camera(inp.hand_camera.to(dt)), _origin_camera(camera.to(dt))
+    cam_h0, cam_o0 = _origin_camera(hand_camera), _origin_camera(camera.to(dt))
     uv, z = cam_h0.project(c)
     c_new = cam_o0.unproject(uv, z * k)
     p_oc = HandParams(p_hc.global_orient, p_hc.transl + (c_new - c), p_hc.pose, p_hc.betas,

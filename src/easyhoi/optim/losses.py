@@ -132,15 +132,15 @@ def mask_mse(pred: torch.Tensor, target: torch.Tensor, reduction: str = "mean") 
     return _reduce(((A - B) ** 2).mean(dim=(1, 2)), reduction)
 
 
-def _coarse_cells(h: int, w: int, gh: int, gw: int, dtype) -> torch.Tensor:
+def _coarse_cells(h: int, w: int, gh: int, gw: int, dtype, device=None) -> torch.Tensor:
     """(gh*gw, 2) cell centres (x, y) of an adaptive-pooled (gh, gw) grid over an (h, w) image.
 
     Coordinates are pixel positions divided by ``max(h, w)``: the longer side spans [0, 1] and
     distances keep the image's aspect ratio.
     """
     s = float(max(h, w))
-    ys = (torch.arange(gh, dtype=dtype) + 0.5) * (h / gh) / s
-    xs = (torch.arange(gw, dtype=dtype) + 0.5) * (w / gw) / s
+    ys = (torch.arange(gh, dtype=dtype, device=device) + 0.5) * (h / gh) / s
+    xs = (torch.arange(gw, dtype=dtype, device=device) + 0.5) * (w / gw) / s
     yy, xx = torch.meshgrid(ys, xs, indexing="ij")
     return torch.stack([xx.reshape(-1), yy.reshape(-1)], dim=-1)
 
@@ -197,7 +197,7 @@ def sinkhorn_mask_loss(
     gh, gw = min(int(grid), h), min(int(grid), w)
     pa = F.adaptive_avg_pool2d(A[:, None], (gh, gw)).reshape(A.shape[0], -1) + MASS_EPS
     pb = F.adaptive_avg_pool2d(B[:, None], (gh, gw)).reshape(B.shape[0], -1)
-    cells = _coarse_cells(h, w, gh, gw, A.dtype)
+    cells = _coarse_cells(h, w, gh, gw, A.dtype, A.device)
     ot = SamplesLoss("sinkhorn", p=2, blur=float(blur), scaling=float(scaling))
     losses = []
     for i in range(A.shape[0]):

@@ -29,7 +29,7 @@ def move_hand(p: HandParams, R: torch.Tensor, t: torch.Tensor, wrist: torch.Tens
     motion is conjugated by the mirror before it is applied to the mirrored parameters.
     """
     if p.side == "left":
-        M = torch.diag(torch.tensor([-1.0, 1.0, 1.0], dtype=R.dtype))
+        M = torch.diag(torch.tensor([-1.0, 1.0, 1.0], dtype=R.dtype, device=R.device))
         R_, t_ = M @ R @ M, M @ t
     else:
         R_, t_ = R, t

@@ -103,11 +103,11 @@ def contact_radii(scene: Scene, cfg: RefineStageConfig):
         return cfg.contact_max_distance
     regions = scene.regions
     part = regions.vertex_part[regions.contact_vertices]
-    opposing = torch.as_tensor([*DIGIT_JOINTS["thumb"], *DIGIT_JOINTS["index"]])
+    opposing = torch.as_tensor([*DIGIT_JOINTS["thumb"], *DIGIT_JOINTS["index"]], device=part.device)
     return torch.where(
-        torch.isin(part, opposing.to(part.device)),
-        torch.tensor(float(cfg.opposition_max_distance), dtype=scene.dtype),
-        torch.tensor(float(cfg.contact_max_distance), dtype=scene.dtype),
+        torch.isin(part, opposing),
+        torch.tensor(float(cfg.opposition_max_distance), dtype=scene.dtype, device=part.device),
+        torch.tensor(float(cfg.contact_max_distance), dtype=scene.dtype, device=part.device),
     )
 
 

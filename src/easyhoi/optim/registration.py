@@ -37,7 +37,7 @@ def _pixel_uv(mask: torch.Tensor) -> torch.Tensor:
 def _pick(frags, keep: torch.Tensor, farthest: bool) -> torch.Tensor:
     """(N,) index of the nearest / farthest kept layer per ray; -1 where none is kept."""
     K = keep.shape[1]
-    idx = torch.arange(K).expand_as(keep)
+    idx = torch.arange(K, device=keep.device).expand_as(keep)
     if farthest:
         score = torch.where(keep, idx, torch.full_like(idx, -1))
         best = score.max(dim=1).values
@@ -101,8 +101,8 @@ def contact_points(
         both = ok_o & ok_h  # rays that meet both surfaces
         obj_pts.append(p_o[both[ok_o]])
         hand_pts.append(p_h[both[ok_h]])
-    src = torch.cat(hand_pts).double().numpy() if hand_pts else np.zeros((0, 3))
-    tgt = torch.cat(obj_pts).double().numpy() if obj_pts else np.zeros((0, 3))
+    src = torch.cat(hand_pts).double().cpu().numpy() if hand_pts else np.zeros((0, 3))
+    tgt = torch.cat(obj_pts).double().cpu().numpy() if obj_pts else np.zeros((0, 3))
     info.update({"hand_points": len(src), "object_points": len(tgt)})
     return src, tgt, info
 

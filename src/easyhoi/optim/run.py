@@ -68,7 +68,8 @@ def plausibility(
     model = scene.hand_model
     with torch.no_grad():
         verts_m = model(params).vertices[0].double()
-    hand = trimesh.Trimesh(verts_m.numpy(), model.faces_for(params.side).numpy(), process=False)
+    faces = model.faces_for(params.side).cpu().numpy()
+    hand = trimesh.Trimesh(verts_m.cpu().numpy(), faces, process=False)
     obj = scene.watertight.copy()
     obj.apply_scale(metric_scale)
     out: dict = {}
@@ -104,6 +105,7 @@ def optimize(
     *,
     hand_model=None,
     progress: Progress | None = None,
+    device=None,
 ) -> HOIResult:
     """Run the three-stage optimizer on one input.
 
@@ -121,6 +123,9 @@ def optimize(
     progress : callable or None
         ``progress(stage_name, iteration, max_iters, {loss terms})``, called every
         ``config.history_every`` iterations of every stage.
+    device : str, torch.device or None
+        Where the optimisation runs ("cpu", "cuda", ...; None: the CPU). The run's resolved
+        device is :attr:`easyhoi.settings.RunSettings.device`. The result is on the CPU.
 
     Returns
     -------
@@ -148,11 +153,13 @@ def optimize(
         from easyhoi.hand import builtin_hand_model
 
         hand_model = builtin_hand_model(inp.hand_model, dtype)
+    device = torch.device("cpu" if device is None else device)
+    hand_model = hand_model.on_device(device)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
-        scene = Scene.from_input(inp, hand_model, dtype)
+        scene = Scene.from_input(inp, hand_model, dtype, device)
         timings["setup"] = time.perf_counter() - t0
         stages, camera, params, m = _run_stages(inp, scene, config, progress, timings)
     t1 = time.perf_counter()
@@ -162,12 +169,14 @@ def optimize(
     timings["plausibility"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     with torch.no_grad():
-        verts = hand_model(params).vertices[0].double().numpy() / m
+        verts = hand_model(params).vertices[0].double().cpu().numpy() / m
+    params, camera = params.to(device="cpu"), camera.to(device="cpu")
+    stages = [_stage_on_cpu(s) for s in stages]
     return HOIResult(
         hand_params=params,
         camera=camera,
         hand_vertices=verts,
-        hand_faces=hand_model.faces_for(params.side).numpy(),
+        hand_faces=hand_model.faces_for(params.side).cpu().numpy(),
         object_mesh=inp.object_mesh,
         metric_scale=m,
         hand_model=inp.hand_model,
@@ -177,6 +186,15 @@ def optimize(
         config=to_dict(config),
         plausibility=report,
         meta=dict(inp.meta),
+    )
+
+
+def _stage_on_cpu(stage: StageResult) -> StageResult:
+    """A stage snapshot with its tensors on the CPU (results are written from there)."""
+    return replace(
+        stage,
+        hand_params=None if stage.hand_params is None else stage.hand_params.to(device="cpu"),
+        camera=None if stage.camera is None else stage.camera.to(device="cpu"),
     )
 
 
@@ -230,7 +248,8 @@ def _run_stages(inp: HOIInput, scene: Scene, config: OptimConfig, progress, timi
         theta0 = inp.hand_params.pose  # the estimator's articulation (same side convention)
         try:
             params, res = fit_refine(scene, params, m, cam, config.refine, config,
-                                     theta0=theta0.to(scene.dtype), progress=progress)  # fmt: skip
+                                     theta0=theta0.to(scene.device, scene.dtype),
+                                     progress=progress)  # fmt: skip
         except InvalidInputError as exc:  # e.g. NaN vertices reaching the renderer
             raise _stage_error("refine", exc) from exc
         stages.append(res)

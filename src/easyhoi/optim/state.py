@@ -93,8 +93,11 @@ class Scene:
     _depth_cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def from_input(cls, inp: HOIInput, hand_model: HandModel, dtype: torch.dtype) -> Scene:
-        """Build the shared state of one run from an :class:`HOIInput`."""
+    def from_input(
+        cls, inp: HOIInput, hand_model: HandModel, dtype: torch.dtype, device="cpu"
+    ) -> Scene:
+        """Build the shared state of one run from an :class:`HOIInput`, its tensors on
+        ``device`` (``hand_model`` must already be there: :meth:`HandModel.on_device`)."""
         mesh = inp.object_mesh
         if mesh.is_watertight:
             wt = mesh
@@ -103,19 +106,19 @@ class Scene:
 
             logger.info("object mesh is not watertight: repairing it for the SDF and metrics")
             wt, _ = make_watertight(mesh)
-        v = torch.as_tensor(np.asarray(mesh.vertices), dtype=dtype)
+        v = torch.as_tensor(np.asarray(mesh.vertices), dtype=dtype, device=device)
         lo, hi = v.min(0).values, v.max(0).values
         extent = float((hi - lo).max())
         if not extent > 0:
             raise InvalidInputError("object mesh is degenerate (zero extent)")
         masks = {
-            "hand": torch.from_numpy(np.array(inp.hand_mask)).to(dtype),
-            "object": torch.from_numpy(np.array(inp.object_mask)).to(dtype),
-            "amodal": torch.from_numpy(np.array(inp.amodal_mask)).to(dtype),
+            "hand": torch.from_numpy(np.array(inp.hand_mask)).to(device, dtype),
+            "object": torch.from_numpy(np.array(inp.object_mask)).to(device, dtype),
+            "amodal": torch.from_numpy(np.array(inp.amodal_mask)).to(device, dtype),
         }
         return cls(
             object_verts=v,
-            object_faces=torch.as_tensor(np.asarray(mesh.faces), dtype=torch.long),
+            object_faces=torch.as_tensor(np.asarray(mesh.faces), dtype=torch.long, device=device),
             watertight=wt,
             center=0.5 * (lo + hi),
             extent=extent,
@@ -125,6 +128,11 @@ class Scene:
             image_size=inp.size,
             masks=masks,
         )
+
+    @property
+    def device(self) -> torch.device:
+        """Where every tensor of the run lives."""
+        return self.object_verts.device
 
     # -- resolution -----------------------------------------------------------------------------
     def render_size(self, fraction: float, render_size: int) -> tuple[int, int]:
@@ -155,7 +163,7 @@ class Scene:
             self._sdf_cache[resolution] = build_sdf_grid(
                 self.watertight, resolution, padding=SDF_PADDING, dtype=self.dtype,
                 exact_band=SDF_EXACT_BAND,
-            )  # fmt: skip
+            ).to(device=self.device)  # fmt: skip
         return self._sdf_cache[resolution]
 
     def sdf(self, points: torch.Tensor, resolution: int) -> torch.Tensor:

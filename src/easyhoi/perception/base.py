@@ -77,7 +77,7 @@ class Segmentation:
         object_mask: visible held object M_o (after contour-guided filtering); may be empty
             when ``has_object`` is False.
         has_object: False when no held object was found (a legitimate outcome).
-        candidates: object candidate masks before filtering (for pictures and debugging).
+        candidates: object candidate masks, best first (for pictures and debugging).
         meta: backend extras.
         confidence: mask name ("hand", "object") ->
             :class:`~easyhoi.perception.confidence.MaskConfidence`; empty when the backend
@@ -101,8 +101,9 @@ class HandEstimator(Protocol):
 
 @runtime_checkable
 class HOISegmenter(Protocol):
-    def segment(self, image: np.ndarray, hand: HandDetection) -> Segmentation:
-        """Visible hand and held-object masks for ``hand``."""
+    def segment(self, image: np.ndarray, hand: HandDetection, prompts=None) -> Segmentation:
+        """Visible hand and held-object masks for ``hand``; ``prompts`` (a
+        :class:`~easyhoi.perception.prompts.Prompts`) point at the object when given."""
         ...
 
 

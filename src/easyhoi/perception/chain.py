@@ -3,8 +3,11 @@
 Steps (each a pluggable backend, chosen by name in :class:`~easyhoi.config.PerceptionConfig`):
 
 1. hand detection (keypoints) and keypoint fitting of the hand model;
-2. HOI segmentation: visible hand mask M_h, held-object mask M_o after contour-guided filtering.
-   With several hands, the first (most confident) hand that holds an object is used;
+2. HOI segmentation: visible hand mask M_h, held-object mask M_o and their confidence. With
+   several hands, each is segmented (the others passed to the segmenter when it takes them) and
+   the hand whose object has the best confidence is used; a hand that holds no object is noted
+   in the report. Prompts pick the hand (a hand point, or the hand nearest the object prompt)
+   and steer the segmenter;
 3. hand removal by inpainting (hand mask dilated);
 4. amodal re-segmentation prompted by points in every part of M_o and a loose box -> M^_o
    (forced to contain M_o);
@@ -142,46 +145,46 @@ def perceive(
             raise InvalidInputError(f"{name} is {h}x{w} but the image is {H}x{W} (height x width)")
     masks_given = pv.hand_mask is not None and pv.object_mask is not None
     # the segmenter first: a missing model folder is reported before any work
-    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter, seed)
+    segmenter = None if masks_given else _backend(pc, "segmenter", pc.segmenter, seed, run.device)
     if pv.hand is not None and masks_given:  # nothing left for the detector to do
         say("hand detection (provided)")
         side = pv.hand[0].side
         hands = [HandDetection(np.zeros((0, 2)), None, side, 1.0, meta={"source": "provided"})]
     else:
-        hands = timed("hand detection", _backend(pc, "hand", pc.hand, seed).detect, image)
+        hands = timed(
+            "hand detection", _backend(pc, "hand", pc.hand, seed, run.device).detect, image
+        )
     report.hands_found = len(hands)
     if not hands:
         raise NoHandError("no hand found in the photo")
-    segment = None if masks_given else _prompted(segmenter, pc.segmenter, prompts)
-    order, report.hand_choice = prompted_hand_order(hands, None if masks_given else prompts)
-    chosen = seg = None
-    for i in order:
-        hand = hands[i]
-        if masks_given:
-            s = Segmentation(pv.hand_mask, pv.object_mask, bool(pv.object_mask.any()))
-        else:
-            s = timed(f"segmentation (hand {i})", segment, image, hand)
-            if pv.hand_mask is not None or pv.object_mask is not None:
-                hm = s.hand_mask if pv.hand_mask is None else pv.hand_mask
-                om = s.object_mask if pv.object_mask is None else pv.object_mask
-                conf = {k: v for k, v in s.confidence.items()
-                        if getattr(pv, f"{k}_mask", None) is None}  # fmt: skip
-                s = Segmentation(hm, om, bool(om.any()), s.candidates, s.meta, conf)
-        if s.has_object:
-            chosen, seg = hand, s
-            report.hand_index = i
-            report.hand_choice = report.hand_choice or "first holding an object"
-            report.confidence.update(s.confidence)
-            break
-        report.notes.append(f"hand {i} ({hand.side}) holds no object")
-    if chosen is None:
-        if report.hand_choice is not None:
-            i = order[0]
-            raise NoObjectError(
-                f"the hand nearest the {report.hand_choice} (hand {i}, {hands[i].side}) holds "
-                "no object"
-            )
-        raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
+    if masks_given:
+        order, report.hand_choice = prompted_hand_order(hands, None)
+        seg = Segmentation(pv.hand_mask, pv.object_mask, bool(pv.object_mask.any()))
+        if not seg.has_object:
+            raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
+        idx = order[0]
+    else:
+        idx, seg, notes, report.hand_choice = segment_hands(
+            image, hands, segmenter, prompts, timed, name=pc.segmenter
+        )
+        report.notes.extend(notes)
+        if seg is None:
+            if report.hand_choice is not None:
+                i = prompted_hand_order(hands, prompts)[0][0]
+                raise NoObjectError(
+                    f"the hand nearest the {report.hand_choice} (hand {i}, {hands[i].side}) "
+                    "holds no object"
+                )
+            raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
+        if pv.hand_mask is not None or pv.object_mask is not None:
+            hm = seg.hand_mask if pv.hand_mask is None else pv.hand_mask
+            om = seg.object_mask if pv.object_mask is None else pv.object_mask
+            conf = {k: v for k, v in seg.confidence.items()
+                    if getattr(pv, f"{k}_mask", None) is None}  # fmt: skip
+            seg = Segmentation(hm, om, bool(om.any()), seg.candidates, seg.meta, conf)
+        report.confidence.update(seg.confidence)
+    chosen = hands[idx]
+    report.hand_index = idx
     report.side, report.has_object = chosen.side, True
 
     model = run.hand_model
@@ -193,7 +196,7 @@ def perceive(
     else:
         chosen = timed("hand fit", fit_detection, chosen, model, W, H)
 
-    inpainter = _backend(pc, "inpainter", pc.inpainter, seed)
+    inpainter = _backend(pc, "inpainter", pc.inpainter, seed, run.device)
     inpainted = timed("inpainting", inpainter.inpaint, image, seg.hand_mask)
     points, box = amodal_prompts(seg.object_mask, seed=seed)
     if pv.amodal_mask is not None:
@@ -201,7 +204,7 @@ def perceive(
     else:
         amodal = timed(
             "amodal segmentation",
-            _backend(pc, "amodal", pc.amodal, seed).segment,
+            _backend(pc, "amodal", pc.amodal, seed, run.device).segment,
             inpainted,
             points,
             box,
@@ -214,7 +217,7 @@ def perceive(
     else:
         from easyhoi.perception.objects import hand_inputs
 
-        reconstructor = _backend(pc, "object", pc.object, seed)
+        reconstructor = _backend(pc, "object", pc.object, seed, run.device)
         hand_kw = hand_inputs(reconstructor, chosen, model, seg.hand_mask, seg.object_mask)
         mesh = timed("object mesh", reconstructor.reconstruct, inpainted, amodal, **hand_kw)
     if not mesh.is_watertight:
@@ -272,6 +275,46 @@ def prompted_hand_order(
     return list(range(len(hands))), None
 
 
+def segment_hands(
+    image: np.ndarray,
+    hands: list[HandDetection],
+    segmenter,
+    prompts: Prompts | None = None,
+    timed: Callable | None = None,
+    name: str = "segmenter",
+) -> tuple[int | None, Segmentation | None, list[str], str | None]:
+    """Segment the hand(s) and pick the one whose held object is most certain.
+
+    The hands come from :func:`prompted_hand_order` (one hand when a prompt picks it). Each is
+    segmented, with the other hands passed as ``others`` when the segmenter takes them (they are
+    never part of the object), and the hand holding an object of the highest object confidence
+    wins (the first on ties). Every hand that holds no object is named in the notes.
+
+    Returns:
+        (hand index, segmentation, notes, why the hand was chosen), or (None, None, notes,
+        reason) when no hand holds an object.
+    """
+    run = timed or (lambda _name, fn, *a, **kw: fn(*a, **kw))
+    segment = _prompted(segmenter, name, prompts)
+    order, choice = prompted_hand_order(hands, prompts)
+    takes_others = "others" in inspect.signature(segmenter.segment).parameters
+    notes, results = [], []
+    for i in order:
+        kw = {"others": [h for j, h in enumerate(hands) if j != i]} if takes_others else {}
+        s = run(f"segmentation (hand {i})", segment, image, hands[i], **kw)
+        if s.has_object:
+            conf = s.confidence.get("object")
+            results.append((conf.score if conf is not None else 0.0, -i, i, s))
+        else:
+            notes.append(f"hand {i} ({hands[i].side}) holds no object")
+    if not results:
+        return None, None, notes, choice
+    _, _, i, s = max(results, key=lambda r: (r[0], r[1]))
+    if choice is None:
+        choice = "first holding an object" if len(results) == 1 else "most confident object"
+    return i, s, notes, choice
+
+
 def _prompted(segmenter, name: str, prompts: Prompts | None):
     """``segment(image, hand)`` of ``segmenter``, handing it the object prompts."""
     if prompts is None or not prompts.has_object_prompt:
@@ -299,10 +342,11 @@ def backend_seed(seed: int) -> int:
     return int(seed) % 2**31
 
 
-def _backend(pc, role: str, name: str, seed: int = 0):
-    """Create a backend: one that takes a ``seed`` gets :func:`backend_seed`, adapters of large
-    models get their local model folders from config (one folder as ``model_dir``, several
-    each under its field's name)."""
+def _backend(pc, role: str, name: str, seed: int = 0, device: str = "cpu"):
+    """Create a backend: one that takes a ``seed`` gets :func:`backend_seed`, one that takes a
+    ``device`` gets the run's (adapters of large models: the model and its inputs go there),
+    adapters of large models get their local model folders from config (one folder as
+    ``model_dir``, several each under its field's name)."""
     from easyhoi.perception.base import factory
 
     kwargs = {}
@@ -312,6 +356,8 @@ def _backend(pc, role: str, name: str, seed: int = 0):
         params = {}
     if "seed" in params:
         kwargs["seed"] = backend_seed(seed)
+    if "device" in params:
+        kwargs["device"] = device
     fields = _MODEL_DIR_FIELDS.get(name)
     if fields is None:
         return create(role, name, **kwargs)

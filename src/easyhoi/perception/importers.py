@@ -331,18 +331,23 @@ def load_object_mesh(path: str | Path) -> trimesh.Trimesh:
     "num_vertices", "num_faces"}``; a mesh that is not watertight is returned as is (repair it
     with the watertight post-processing before the SDF-based stages).
     """
+    from easyhoi.errors import InputTooLargeError
     from easyhoi.geometry.mesh import load_mesh
+    from easyhoi.limits import declared_face_count
 
     p = Path(path)
     if p.is_file() and p.stat().st_size > MAX_OBJECT_FILE_BYTES:
-        raise InvalidInputError(
+        raise InputTooLargeError(
             f"object mesh {p} is {p.stat().st_size / 2**20:.0f} MiB; files over "
             f"{MAX_OBJECT_FILE_BYTES // 2**20} MiB are refused (decimate the mesh first)"
         )
-    mesh = load_mesh(path)
-    if len(mesh.faces) > MAX_OBJECT_FACES:
-        raise InvalidInputError(
-            f"object mesh {p} has {len(mesh.faces):,} faces; at most {MAX_OBJECT_FACES:,} are "
+    # the face count the file declares is checked before parsing, the parsed one after
+    declared = declared_face_count(p) if p.is_file() else None
+    mesh = None if declared is not None and declared > MAX_OBJECT_FACES else load_mesh(path)
+    faces = declared if mesh is None else len(mesh.faces)
+    if faces > MAX_OBJECT_FACES:
+        raise InputTooLargeError(
+            f"object mesh {p} has {faces:,} faces; at most {MAX_OBJECT_FACES:,} are "
             "accepted (decimate the mesh first, e.g. quadric decimation to 50,000 faces)"
         )
     mesh.metadata["easyhoi"] = {

@@ -1,6 +1,8 @@
-"""CPU rendering: differentiable soft silhouettes, occlusion-aware HOI masks, depth peeling.
+"""Rendering: differentiable soft silhouettes, occlusion-aware HOI masks, depth peeling.
 
-See docs/rendering.md for the design, conventions and measured performance.
+Compiled numba kernels on the CPU, vectorized torch kernels on any device (a GPU included: they
+run wherever their inputs are). See docs/rendering.md for the design, conventions and measured
+performance, docs/gpu.md for the GPU path.
 """
 
 from easyhoi.render.composite import HOIMasks, extend_depth, hoi_masks

@@ -107,8 +107,11 @@ def hoi_masks(
     """
     hand = soft_silhouette(hand_verts, hand_faces, camera, sigma, near, cull_eps)
     obj = soft_silhouette(object_verts, object_faces, camera, sigma, near, cull_eps)
-    zh = depth_map(torch.as_tensor(hand_verts).detach(), hand_faces, camera.detach(), near)
-    zo = depth_map(torch.as_tensor(object_verts).detach(), object_faces, camera.detach(), near)
+    dev = camera.K.device
+    zh = depth_map(torch.as_tensor(hand_verts, device=dev).detach(), hand_faces, camera.detach(),
+                   near)  # fmt: skip
+    zo = depth_map(torch.as_tensor(object_verts, device=dev).detach(), object_faces,
+                   camera.detach(), near)  # fmt: skip
     radius = math.ceil(cull_margin(sigma, cull_eps))
     zh_ext, zo_ext = extend_depth(zh, radius), extend_depth(zo, radius)
     hand_vis = hand * (zh_ext <= zo).to(hand.dtype)

@@ -17,9 +17,11 @@ Culling: only pairs (pixel, face) whose pixel centre lies in the face's bounding
 ``log(1 - D)``; the backward pass is analytic (envelope theorem on the closest edge point),
 saving only five numbers per pair.
 
-Kernels (:func:`set_backend`): compiled numba loops by default (``render/_numba_kernels.py``:
-no pair is stored, the backward recomputes them), the vectorized PyTorch kernel below when numba
-is missing (and as the test oracle), or that kernel through ``torch.compile``.
+Kernels (:func:`set_backend`): compiled numba loops by default on the CPU
+(``render/_numba_kernels.py``: no pair is stored, the backward recomputes them), the vectorized
+PyTorch kernel below when numba is missing, for inputs on any other device (a GPU: it creates
+every tensor on its inputs' device), and as the test oracle, or that kernel through
+``torch.compile``.
 
 Conventions: coverage is orientation independent, so back faces are included. A face with any
 vertex closer to the camera than ``near`` (camera z, world units) is dropped (no clipping); a mesh
@@ -252,7 +254,7 @@ class _SoftLogSumNumba(torch.autograd.Function):
                 num_pix: int):  # fmt: skip
         tri = tri_uv.detach().reshape(-1, 6).contiguous()
         base = base.contiguous()
-        out = torch.empty(num_pix, dtype=tri.dtype)
+        out = torch.empty(num_pix, dtype=tri.dtype, device=tri.device)
         args = (tri.numpy(), base.numpy(), height, width, 1.0 / sigma, margin, num_pix)
         if not numba_call("soft_logsum_forward", *args, out.numpy()):
             raise _KernelUnavailable

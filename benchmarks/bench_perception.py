@@ -1,0 +1,240 @@
+"""Held-object perception on the development photos, against hand-drawn reference masks.
+
+Per photo: hand detection (MediaPipe) and segmentation of every hand with the chosen hand picked
+as :func:`easyhoi.perception.chain.segment_hands` does in the product. Reported per photo:
+
+* ``hand``: a hand was found; ``hand IoU``: the chosen hand mask against the reference hand it
+  matches best;
+* ``IoU``: the chosen object mask against the reference held object(s) (0 when none is output);
+* ``wrong``: an object is output, one is present, and IoU < 0.5;
+* ``missed``: an object is visibly held and none is output;
+* ``low``: the object confidence is low (< 0.5; the product warns);
+* ``s``: seconds for detection + segmentation;
+* ``IoU 1pt``: the same with one object point, the reference mask's deepest interior point
+  (maximum of its distance transform, ``tests/perception_refs.object_point``), as a user's
+  single click.
+
+The reference object is every object a hand holds (``held_by``), visibly or not.
+
+The photos are split in two fixed halves by a checksum of their name (CRC-32 even: ``tune``,
+odd: ``check``); the summary is given for each half and for all. Reference masks: the JSON
+polygons in ``tests/data/perception_refs`` (``--refs`` to read another folder); photos without
+a reference file are skipped.
+
+Usage::
+
+    python benchmarks/bench_perception.py                       # all photos with references
+    python benchmarks/bench_perception.py --split check --no-point
+    python benchmarks/bench_perception.py --only mow- --sheet /tmp/sheet.png
+
+Results: a Markdown table on stdout and ``benchmarks/results/bench_perception.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import zlib
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+DATA = ROOT.parent / "shared" / "data"
+
+
+def reference(path: Path) -> dict:
+    """Reference of one photo (``tests/perception_refs.py`` format): image path, one mask per
+    hand, the held-object mask (None: nothing held), whether it is visibly held, and the
+    one-click point (the held-object mask's deepest interior pixel)."""
+    sys.path.insert(0, str(ROOT))
+    from tests import perception_refs as pr
+
+    ref = pr.load_ref(path)
+    obj = pr.held_object_mask(ref)
+    return {
+        "image": ref.image,
+        "hand": [pr.rasterize(h.polygons, ref.height, ref.width) for h in ref.hands],
+        "object": obj if obj.any() else None,
+        "visibly_held": any(o.held_by and o.visibly_held for o in ref.objects),
+        "point": pr.object_point(ref),
+    }
+
+
+def fit_to(ref: dict, shape: tuple[int, int]) -> dict:
+    """The reference with its masks resampled to ``shape`` (the photo loader may downscale
+    very large photos)."""
+
+    def fit(m):
+        if m is None or m.shape == tuple(shape):
+            return m
+        return cv2.resize(m.astype(np.uint8), shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+
+    h0, w0 = ref["hand"][0].shape if ref["hand"] else shape
+    pt = ref["point"]
+    if pt is not None:
+        pt = (pt[0] * shape[1] / w0, pt[1] * shape[0] / h0)
+    return {
+        **ref,
+        "hand": [fit(h) for h in ref["hand"]],
+        "object": fit(ref["object"]),
+        "point": pt,
+    }
+
+
+def iou(a: np.ndarray | None, b: np.ndarray | None) -> float:
+    if a is None or b is None:
+        return 0.0
+    return float((a & b).sum()) / max(1.0, float((a | b).sum()))
+
+
+def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
+    from easyhoi.perception.chain import segment_hands
+    from easyhoi.perception.prompts import Prompts
+
+    t0 = time.perf_counter()
+    hands = detector.detect(rgb)
+    idx, seg, notes, _ = segment_hands(rgb, hands, segmenter) if hands else (None, None, [], None)
+    secs = time.perf_counter() - t0
+    present = ref["object"] is not None
+    out_obj = seg.object_mask if seg is not None else None
+    conf = seg.confidence.get("object") if seg is not None else None
+    row = {
+        "hand": bool(hands),
+        # against the reference hand it matches best (the photo may show several)
+        "hand_iou": max((iou(seg.hand_mask, h) for h in ref["hand"]), default=0.0)
+        if seg is not None
+        else 0.0,
+        "present": present,
+        "output": seg is not None,
+        "iou": iou(out_obj, ref["object"]),
+        "confidence": None if conf is None else round(conf.score, 3),
+        "low": bool(conf is None or conf.low),
+        "reasons": [] if conf is None else list(conf.reasons),
+        "seconds": secs,
+        "notes": notes,
+        "score": None if seg is None else seg.meta.get("score"),
+        "margin": None if seg is None else seg.meta.get("margin"),
+    }
+    row["wrong"] = bool(seg is not None and present and row["iou"] < 0.5)
+    row["missed"] = bool(present and ref["visibly_held"] and seg is None)
+    row["false_object"] = bool(seg is not None and not present)
+    if with_point and present and hands:
+        p = Prompts(object_points=(tuple(float(v) for v in ref["point"]),))
+        t1 = time.perf_counter()
+        _, sp, _, _ = segment_hands(rgb, hands, segmenter, prompts=p)
+        row["seconds_point"] = time.perf_counter() - t1
+        row["iou_point"] = iou(sp.object_mask if sp is not None else None, ref["object"])
+    return row
+
+
+def summary(rows: list[dict]) -> dict:
+    held = [r for r in rows if r["present"]]
+    wrong = [r for r in held if r["wrong"]]
+    right = [r for r in held if r["output"] and not r["wrong"]]
+    pts = [r for r in held if "iou_point" in r]
+    return {
+        "photos": len(rows),
+        "with_object": len(held),
+        "hand_found": float(np.mean([r["hand"] for r in rows])) if rows else 0.0,
+        "iou_ge_0.5": float(np.mean([r["iou"] >= 0.5 for r in held])) if held else 0.0,
+        "mean_iou": float(np.mean([r["iou"] for r in held])) if held else 0.0,
+        "missed": float(np.mean([r["missed"] for r in held])) if held else 0.0,
+        "wrong": len(wrong),
+        "wrong_flagged_low": float(np.mean([r["low"] for r in wrong])) if wrong else 1.0,
+        "right_flagged_low": float(np.mean([r["low"] for r in right])) if right else 0.0,
+        "point_iou_ge_0.5": float(np.mean([r["iou_point"] >= 0.5 for r in pts])) if pts else 0.0,
+        "point_mean_iou": float(np.mean([r["iou_point"] for r in pts])) if pts else 0.0,
+        "median_seconds": float(np.median([r["seconds"] for r in rows])) if rows else 0.0,
+    }
+
+
+def table(rows: list[dict], names: list[str]) -> str:
+    head = "| photo | half | hand | hand IoU | IoU | wrong | missed | conf | low | s | IoU 1pt |"
+    lines = [head, "|" + "---|" * 11]
+    for n, r in zip(names, rows, strict=True):
+        lines.append(
+            f"| {n} | {r['half']} | {'y' if r['hand'] else 'n'} | {r['hand_iou']:.2f} | "
+            f"{r['iou']:.2f} | {'y' if r['wrong'] else ''} | {'y' if r['missed'] else ''} | "
+            f"{'-' if r['confidence'] is None else format(r['confidence'], '.2f')} | "
+            f"{'y' if r['low'] else ''} | {r['seconds']:.2f} | "
+            f"{format(r['iou_point'], '.2f') if 'iou_point' in r else '-'} |"
+        )
+    return "\n".join(lines)
+
+
+def summary_table(summ: dict) -> str:
+    keys = list(next(iter(summ.values())))
+    lines = ["| | " + " | ".join(summ) + " |", "|---|" + "---|" * len(summ)]
+    for k in keys:
+        cells = []
+        for s in summ.values():
+            v = s[k]
+            cells.append(f"{v:.2f}" if isinstance(v, float) else str(v))
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--refs", type=Path, default=ROOT / "tests" / "data" / "perception_refs")
+    ap.add_argument("--split", choices=("all", "tune", "check"), default="all")
+    ap.add_argument("--only", default="", help="substring of the photo names to run")
+    ap.add_argument("--no-point", action="store_true", help="skip the one-point runs")
+    ap.add_argument("--out", type=Path, default=RESULTS / "bench_perception.json")
+    args = ap.parse_args(argv)
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+    from easyhoi.io.image import load_image
+    from easyhoi.perception.masks import ClassicalHOISegmenter
+    from easyhoi.perception.mediapipe_hand import MediaPipeHands
+
+    files = sorted(args.refs.glob("*.json"))
+    if not files:
+        print(f"no reference files in {args.refs}", file=sys.stderr)
+        return 1
+    detector, segmenter = MediaPipeHands(), ClassicalHOISegmenter()
+    rows, names = [], []
+    for f in files:
+        half = "tune" if zlib.crc32(f.stem.encode()) % 2 == 0 else "check"
+        if args.split != "all" and half != args.split:
+            continue
+        ref = reference(f)
+        name = Path(ref["image"]).name
+        if args.only and args.only not in name:
+            continue
+        rgb = load_image(args.data / ref["image"]).rgb
+        ref = fit_to(ref, rgb.shape[:2])
+        row = run_photo(rgb, ref, detector, segmenter, not args.no_point)
+        row["half"] = half
+        rows.append(row)
+        names.append(name)
+        print(
+            f"{name[:44]:44s} {half:5s} iou={row['iou']:.2f} conf={row['confidence']} "
+            f"pt={row.get('iou_point', float('nan')):.2f} {row['seconds']:.2f}s",
+            file=sys.stderr,
+            flush=True,
+        )
+    summ = {"all": summary(rows)}
+    for half in ("tune", "check"):
+        part = [r for r in rows if r["half"] == half]
+        if part and args.split == "all":
+            summ[half] = summary(part)
+    print(table(rows, names))
+    print()
+    print(summary_table(summ))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(
+        json.dumps({"photos": dict(zip(names, rows, strict=True)), "summary": summ}, indent=1)
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,225 @@
+"""Region proposals: superpixels grouped hierarchically into object hypotheses.
+
+A held object is rarely one colour, and no single threshold on one segmentation finds it in
+every photo. Instead of committing to one segmentation, the working crop is over-segmented
+(Felzenszwalb-Huttenlocher graph segmentation, which follows image edges) and the segments are
+merged pairwise, most similar neighbours first (the selective-search grouping: colour histogram
+similarity, preference for merging small regions, and for merges that fill their bounding box).
+Every region created along the way is a hypothesis, from single segments up to large parts of the
+crop, so an object made of several coloured parts (a can with a label, a bottle with a cap)
+appears as one hypothesis at some level of the hierarchy while the background next to it stays
+another.
+
+Hypotheses are represented by the set of base segments they contain; per-segment statistics
+(summed by :func:`segment_sums`) give most cues of a hypothesis without drawing its mask.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Histogram bins per Lab channel used for the colour similarity.
+BINS = 12
+
+
+@dataclass(frozen=True)
+class Proposals:
+    """Base segments and the hypotheses grouped from them.
+
+    Attributes:
+        labels: (h, w) int base-segment label per pixel, -1 on excluded pixels (the hands).
+        regions: tuple of frozensets of base labels, one per hypothesis (base segments first,
+            then every merge in the order it happened).
+        sizes: (n_base,) pixel count of each base segment.
+    """
+
+    labels: np.ndarray
+    regions: tuple[frozenset, ...]
+    sizes: np.ndarray
+
+    @property
+    def n_base(self) -> int:
+        return len(self.sizes)
+
+    def mask(self, region: frozenset) -> np.ndarray:
+        """(h, w) bool mask of a hypothesis."""
+        lut = np.zeros(self.n_base + 1, bool)
+        lut[np.fromiter(region, int, len(region)) + 1] = True
+        return lut[self.labels + 1]
+
+
+def base_segments(
+    image: np.ndarray, exclude: np.ndarray, scale: float, min_size: int, sigma: float = 0.8
+) -> np.ndarray:
+    """(h, w) int labels 0..n-1 of Felzenszwalb segments split into connected pieces outside
+    ``exclude`` (labelled -1)."""
+    import cv2
+    from skimage.segmentation import felzenszwalb
+
+    seg = felzenszwalb(image, scale=scale, sigma=sigma, min_size=min_size)
+    seg = np.where(exclude, -1, seg)
+    # a segment cut in two by the hand becomes two segments (pieces on either side of a finger
+    # are separate hypotheses until the grouping decides they belong together)
+    out = np.full(seg.shape, -1, np.int64)
+    nxt = 0
+    for lab in np.unique(seg[seg >= 0]):
+        n, cc = cv2.connectedComponents((seg == lab).astype(np.uint8), connectivity=4)
+        for i in range(1, n):
+            out[cc == i] = nxt
+            nxt += 1
+    return out
+
+
+def segment_sums(labels: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Per-segment sums of a per-pixel ``values`` (h, w) array (pixels labelled -1 ignored)."""
+    ok = labels >= 0
+    return np.bincount(labels[ok], weights=values[ok].astype(np.float64), minlength=n)
+
+
+def adjacency(labels: np.ndarray) -> set[tuple[int, int]]:
+    """Pairs (a < b) of base segments that share a 4-neighbour edge."""
+    pairs = set()
+    for a, b in ((labels[:, :-1], labels[:, 1:]), (labels[:-1, :], labels[1:, :])):
+        m = (a != b) & (a >= 0) & (b >= 0)
+        lo, hi = np.minimum(a[m], b[m]), np.maximum(a[m], b[m])
+        pairs.update(zip(lo.tolist(), hi.tolist(), strict=True))
+    return pairs
+
+
+def fill_excluded(labels: np.ndarray) -> np.ndarray:
+    """``labels`` with every excluded pixel (-1) given the label of the nearest segment.
+
+    Used for adjacency only: the parts of an object on either side of a finger become
+    neighbours, so the grouping can join an object the fingers cross."""
+    import cv2
+
+    ex = labels < 0
+    if not ex.any() or ex.all():
+        return labels
+    _, idx = cv2.distanceTransformWithLabels(
+        ex.astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
+    )
+    zy, zx = np.nonzero(~ex)  # DIST_LABEL_PIXEL numbers the zero pixels in raster order from 1
+    out = labels.copy()
+    k = idx[ex] - 1
+    out[ex] = labels[zy[k], zx[k]]
+    return out
+
+
+def _histograms(lab: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
+    """(n, 3 * BINS) L1-normalised Lab colour histograms of the base segments."""
+    ok = labels >= 0
+    out = np.zeros((n, 3 * BINS))
+    ranges = ((0.0, 255.0), (0.0, 255.0), (0.0, 255.0))  # OpenCV's 8-bit Lab
+    for c, (lo, hi) in enumerate(ranges):
+        b = np.clip(((lab[..., c] - lo) / (hi - lo) * BINS).astype(int), 0, BINS - 1)
+        np.add.at(out, (labels[ok], c * BINS + b[ok]), 1.0)
+    return out / np.maximum(out.sum(1, keepdims=True), 1.0)
+
+
+def group(
+    labels: np.ndarray, lab: np.ndarray, max_size: float | None = None
+) -> tuple[tuple[frozenset, ...], np.ndarray]:
+    """Selective-search grouping of base segments.
+
+    Parameters
+    ----------
+    labels : (h, w) int
+        Base segments 0..n-1 (-1 excluded).
+    lab : (h, w, 3)
+        Lab image (OpenCV 8-bit ranges).
+    max_size : float, optional
+        Merged regions larger than this many pixels are not recorded (nor merged further).
+
+    Returns
+    -------
+    regions : tuple of frozenset
+        The n base segments, then every merged region.
+    sizes : (n,) float
+        Base segment sizes.
+    """
+    n = int(labels.max()) + 1 if (labels >= 0).any() else 0
+    if n == 0:
+        return (), np.zeros(0)
+    total = float((labels >= 0).sum())
+    sizes = segment_sums(labels, np.ones(labels.shape), n)
+    hist = list(_histograms(lab, labels, n))
+    yy, xx = np.nonzero(labels >= 0)
+    ll = labels[yy, xx]
+    bbox = np.stack(
+        [
+            np.full(n, np.inf),
+            np.full(n, np.inf),
+            np.full(n, -np.inf),
+            np.full(n, -np.inf),
+        ],
+        1,
+    )
+    np.minimum.at(bbox[:, 0], ll, xx)
+    np.minimum.at(bbox[:, 1], ll, yy)
+    np.maximum.at(bbox[:, 2], ll, xx)
+    np.maximum.at(bbox[:, 3], ll, yy)
+    regions: list[frozenset] = [frozenset((i,)) for i in range(n)]
+    size = list(sizes)
+    box = [tuple(b) for b in bbox]
+    neigh: dict[int, set[int]] = {i: set() for i in range(n)}
+    for a, b in adjacency(fill_excluded(labels)):
+        neigh[a].add(b)
+        neigh[b].add(a)
+
+    def sim(a: int, b: int) -> float:
+        colour = float(np.minimum(hist[a], hist[b]).sum()) / 3.0
+        small = 1.0 - (size[a] + size[b]) / total
+        bx = (
+            max(box[a][2], box[b][2]) - min(box[a][0], box[b][0]) + 1,
+            max(box[a][3], box[b][3]) - min(box[a][1], box[b][1]) + 1,
+        )
+        fill = 1.0 - (bx[0] * bx[1] - size[a] - size[b]) / total
+        return colour + small + fill
+
+    pair_sim = {(a, b): sim(a, b) for a in neigh for b in neigh[a] if a < b}
+    while pair_sim:
+        (a, b), _ = max(pair_sim.items(), key=lambda kv: (kv[1], -kv[0][0], -kv[0][1]))
+        merged_size = size[a] + size[b]
+        if max_size is not None and merged_size > max_size:
+            del pair_sim[(a, b)]  # too large to be a held object: this merge is not made
+            continue
+        new = len(regions)
+        regions.append(regions[a] | regions[b])
+        size.append(merged_size)
+        hist.append((hist[a] * size[a] + hist[b] * size[b]) / merged_size)
+        box.append(
+            (
+                min(box[a][0], box[b][0]),
+                min(box[a][1], box[b][1]),
+                max(box[a][2], box[b][2]),
+                max(box[a][3], box[b][3]),
+            )
+        )
+        nb = (neigh[a] | neigh[b]) - {a, b}
+        for k in (a, b):
+            for j in neigh.pop(k):
+                pair_sim.pop((min(j, k), max(j, k)), None)
+                if j in neigh:
+                    neigh[j].discard(k)
+        neigh[new] = nb
+        for j in nb:
+            neigh[j].add(new)
+            pair_sim[(j, new)] = sim(j, new)
+    return tuple(regions), sizes
+
+
+def propose(
+    image: np.ndarray,
+    lab: np.ndarray,
+    exclude: np.ndarray,
+    scale: float,
+    min_size: int,
+    max_size: float | None = None,
+) -> Proposals:
+    """Base segments of ``image`` outside ``exclude`` and their hierarchical grouping."""
+    labels = base_segments(image, exclude, scale, min_size)
+    regions, sizes = group(labels, lab, max_size)
+    return Proposals(labels=labels, regions=regions, sizes=sizes)

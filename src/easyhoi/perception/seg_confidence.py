@@ -1,0 +1,94 @@
+"""Confidence of the hand and held-object masks, from the cues that chose them.
+
+The score is a logistic function of the evidence; the reasons name every weak cue in words, so
+a user learns what was doubtful and that an object point (``--object-point X,Y``) fixes it.
+
+Object (automatic): the held-object score of the chosen hypothesis and its margin over the best
+*different* hypothesis (IoU < 0.5). A high score means the region is where a grasped object lies
+(pressed by several fingers and the thumb, filling the grasp, not skin, not background running out
+of the picture, with a closed outline); a small margin means another region is almost as good a
+held object, and the choice between them is a guess. Prompted: the user said where the object is,
+so only a region that grew far beyond the prompt or looks like skin lowers the score.
+
+Hand: the detector's score, and how much of the skeleton's core the hand mask covers (a mask
+that misses the fingers the detector placed means the hand colour model failed).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from easyhoi.perception.confidence import MaskConfidence
+from easyhoi.perception.held_object import AREA_RANGE, CUES, Hypotheses
+from easyhoi.perception.skin import draw_skeleton, palm_length
+
+#: Logistic calibration of the automatic object score: sigmoid(A * (score - S0) + B * (margin -
+#: M0)), the margin capped at 3. Set on the tuning half of the development photos so that the
+#: wrong choices there score low: a choice is trusted only when the region has most of the
+#: held-object cues (score >= S0) and clearly beats every different region (margin >= M0).
+CALIBRATION = {"A": 1.0, "S0": 5.0, "B": 1.5, "M0": 2.5}
+
+
+def _sigmoid(z: float) -> float:
+    return float(1.0 / (1.0 + np.exp(-z)))
+
+
+def weak_cues(cues: dict) -> list[str]:
+    """Words for every weak cue of a hypothesis (``cues``: name -> value, see held_object)."""
+    out = []
+    if cues["fingers"] < 2:
+        out.append(f"touches {int(cues['fingers'])} fingertip(s)")
+    if not cues["thumb"]:
+        out.append("the thumb does not touch it")
+    if cues["skin"] > 0.3:
+        out.append(f"{cues['skin']:.0%} of it has the hand's skin colour")
+    if cues["other_hand"] > 0.1:
+        out.append("it overlaps another hand")
+    if cues["border"] > 0.5:
+        out.append("it runs out of the picture around the hand, as background does")
+    lo, hi = AREA_RANGE
+    if not lo <= cues["area"] <= hi:
+        out.append(f"its size ({cues['area']:.2f} x the hand) is unusual for a held object")
+    if cues["contrast"] < 0.5:
+        out.append("its outline has little contrast with its surroundings")
+    return out
+
+
+def object_confidence(
+    hyp: Hypotheses | None,
+    best: int | None,
+    runner: int | None,
+    has_object: bool,
+    prompted: bool,
+    min_score: float,
+) -> MaskConfidence:
+    """Confidence of the held-object mask (see the module docstring)."""
+    if hyp is None or best is None or not has_object:
+        return MaskConfidence(0.0, ("no region scored as a held object; point at it",))
+    cues = dict(zip(CUES, hyp.cues[best], strict=True))
+    reasons = weak_cues(cues)
+    s = float(hyp.scores[best])
+    if prompted:
+        z = 2.5 - 3.0 * cues["skin"] - 2.0 * max(0.0, np.log(max(cues["area"], 1e-6) / 6.0))
+        return MaskConfidence(_sigmoid(z), tuple(r for r in reasons if "skin" in r or "size" in r))
+    margin = s - float(hyp.scores[runner]) if runner is not None else 3.0
+    c = CALIBRATION
+    z = c["A"] * (s - c["S0"]) + c["B"] * (min(margin, 3.0) - c["M0"])
+    if margin < c["M0"]:
+        reasons.append(f"another region is almost as likely (score margin {margin:.2f})")
+    if s < c["S0"]:
+        reasons.append(f"weak held-object evidence (score {s:.2f})")
+    return MaskConfidence(_sigmoid(z), tuple(reasons))
+
+
+def hand_confidence(hand, mask: np.ndarray, kp: np.ndarray, skin_d2: np.ndarray) -> MaskConfidence:
+    """Confidence of the hand mask: detector score x share of the skeleton core covered."""
+    core = draw_skeleton(mask.shape, kp, 0.08 * palm_length(kp), palm=False)
+    cover = float((core & mask).sum()) / max(1.0, float(core.sum()))
+    det = float(np.clip(hand.score, 0.0, 1.0))
+    reasons = []
+    if det < 0.7:
+        reasons.append(f"the hand detector is unsure ({det:.2f})")
+    if cover < 0.7:
+        reasons.append(f"the hand mask covers {cover:.0%} of the detected fingers")
+    return MaskConfidence(det * min(1.0, cover / 0.7), tuple(reasons))
