@@ -330,6 +330,7 @@ def _prompted(segmenter, name: str, prompts: Prompts | None):
 #: Backends that load large models from local folders, and the config fields naming them.
 _MODEL_DIR_FIELDS = {"sam": ("sam_dir",), "depth": ("depth_dir",),
                      "diffusion": ("diffusion_dir",),
+                     "shap-e": ("shape_dir",),
                      "grounded-sam": ("detector_dir", "sam_dir")}  # fmt: skip
 
 
