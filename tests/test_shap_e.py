@@ -80,3 +80,13 @@ def test_shap_e_backend_names_its_flag():
 
     with pytest.raises(InvalidInputError, match="--shape-dir"):
         chain._backend(PerceptionConfig(object="shap-e"), "object", "shap-e")
+
+
+def test_shape_dir_flag_selects_the_backend(tmp_path):
+    from easyhoi.cli import _config_from_args, build_parser
+
+    args = build_parser().parse_args(
+        ["reconstruct", "photo.jpg", "--out", str(tmp_path / "o"), "--shape-dir", str(tmp_path)]
+    )
+    cfg = _config_from_args(args)
+    assert cfg.perception.object == "shap-e" and cfg.perception.shape_dir == str(tmp_path)
