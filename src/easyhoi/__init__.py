@@ -1,6 +1,6 @@
 """easyhoi: single-image 3D hand-object reconstruction on a CPU (the EasyHOI method).
 
-The small public API (heavier names are imported on first use)::
+The small public API (every name that needs torch is imported on first use)::
 
     from easyhoi import reconstruct_photo, resolve_run, optimize, get_preset
     rec = reconstruct_photo("photo.jpg", "results/photo")  # photo -> result folder
@@ -15,11 +15,15 @@ from easyhoi.errors import (
     InvalidInputError,
     MissingDependencyError,
 )
-from easyhoi.structures import Camera, HandOutput, HandParams
 
 __version__ = "0.1.0"
 
+#: Public names imported on first use: ``import easyhoi`` (and so ``easyhoi --help``) must not
+#: pay for torch, which every one of these pulls in.
 _LAZY = {
+    "Camera": ("easyhoi.structures", "Camera"),
+    "HandOutput": ("easyhoi.structures", "HandOutput"),
+    "HandParams": ("easyhoi.structures", "HandParams"),
     "reconstruct_photo": ("easyhoi.pipeline", "reconstruct_photo"),
     "optimize": ("easyhoi.optim.run", "optimize"),
     "HOIInput": ("easyhoi.hoi", "HOIInput"),
@@ -49,12 +53,13 @@ def __getattr__(name: str):
 
 __all__ = [
     "BackendError",
-    "Camera",
     "EasyHOIError",
-    "HandOutput",
-    "HandParams",
     "InvalidInputError",
     "MissingDependencyError",
     "__version__",
     *_LAZY,
 ]
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

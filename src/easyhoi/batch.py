@@ -572,7 +572,7 @@ def run_batch(
     root : path-like or None
         Folder the photo names are relative to (None: the deepest common folder).
     threads : int or None
-        Torch threads per worker (None: ``max(1, cores // workers)``).
+        Torch threads per worker (None: :data:`easyhoi.distributed.DEFAULT_THREADS`, one).
     wait : bool
         When another run holds ``out_dir`` (see :mod:`easyhoi.batch_lock`), wait for it
         instead of refusing.

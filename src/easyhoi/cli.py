@@ -142,14 +142,8 @@ def cmd_reconstruct(args) -> int:
 
 def cmd_batch(args) -> int:
     """Reconstruct every photo of a folder; ``manifest.jsonl``/``.csv`` record each outcome."""
-    from easyhoi.batch import discover_images
-
     folder = Path(args.folder)
-    _check_out_dir(Path(args.out))
-    images = discover_images(folder, recursive=args.recursive, exclude=[args.out])
-    if not images:
-        hint = "" if args.recursive else " (add --recursive to include subfolders)"
-        raise InvalidInputError(f"no photos found in {folder}{hint}")
+    images = _batch_images(args)
     prompts = None
     if args.prompts:
         from easyhoi.batch import plan_tasks
@@ -158,6 +152,19 @@ def cmd_batch(args) -> int:
         photos = {t.key: t.image for t in plan_tasks(images, args.out, root=folder)}
         prompts = load_prompts_file(args.prompts, photos)
     return _run_batch(args, images, folder, run_from_args(args), prompts)
+
+
+def _batch_images(args) -> list[Path]:
+    """The photos of ``batch``'s folder, after checking ``--out`` (no torch needed)."""
+    from easyhoi.batch import discover_images
+
+    folder = Path(args.folder)
+    _check_out_dir(Path(args.out))
+    images = discover_images(folder, recursive=args.recursive, exclude=[args.out])
+    if not images:
+        hint = "" if args.recursive else " (add --recursive to include subfolders)"
+        raise InvalidInputError(f"no photos found in {folder}{hint}")
+    return images
 
 
 def _run_batch(args, images: list[Path], root: Path | None, run, prompts=None) -> int:
@@ -187,7 +194,7 @@ def _run_batch(args, images: list[Path], root: Path | None, run, prompts=None) -
     try:
         summary = run_batch(
             images, args.out, worker, engine=getattr(args, "engine", "inline"),
-            workers=getattr(args, "workers", 1), resume=getattr(args, "resume", False),
+            workers=_batch_workers(args), resume=getattr(args, "resume", False),
             seed=run.seed, ray_address=getattr(args, "ray_address", None),
             progress=progress, root=root, wait=getattr(args, "wait", False),
         )  # fmt: skip
@@ -195,6 +202,18 @@ def _run_batch(args, images: list[Path], root: Path | None, run, prompts=None) -
         bar.close()
     _say(args, f"batch: {summary.line()}; manifest: {summary.manifest}")
     return summary.exit_code
+
+
+def _batch_workers(args) -> int:
+    """``--workers``, else one worker process per available core (1 for the inline engine)."""
+    workers = getattr(args, "workers", None)
+    if workers is not None:
+        return workers
+    if getattr(args, "engine", "inline") == "inline":
+        return 1  # several photos given to reconstruct: one warm process, this one
+    from easyhoi.distributed import available_cores
+
+    return available_cores()
 
 
 def cmd_demo(args) -> int:
@@ -259,34 +278,10 @@ def cmd_eval(args) -> int:
 
 
 def cmd_doctor(args) -> int:
-    """Versions, available backends and what is missing."""
-    import importlib
-    import os
-    import platform
+    """Versions, available backends and what is missing (imports none of the heavy libraries)."""
+    from easyhoi.doctor import doctor_lines
 
-    from easyhoi.perception.base import ROLES, available
-
-    lines = [f"easyhoi {__version__}, Python {platform.python_version()}"]
-    for mod in ("torch", "numpy", "scipy", "trimesh", "embreex", "point_cloud_utils",
-                "pymeshfix", "pybullet", "geomloss", "numba", "cv2", "skimage",
-                "mediapipe", "transformers", "diffusers", "gradio", "ray"):  # fmt: skip
-        try:
-            m = importlib.import_module(mod)
-            lines.append(f"  {mod:18s} {getattr(m, '__version__', 'ok')}")
-        except Exception as exc:  # noqa: BLE001 - report anything that fails to import
-            lines.append(f"  {mod:18s} not available ({type(exc).__name__})")
-    from easyhoi.render import get_backend
-
-    lines.append(f"renderer kernels: {get_backend()} (numba = compiled; torch = slower fallback)")
-    lines.append("backends:")
-    for role in ROLES:
-        lines.append(f"  {role:10s} {', '.join(available(role))}")
-    mano = os.environ.get("EASYHOI_MANO_DIR")
-    lines.append(
-        "MANO: " + (f"EASYHOI_MANO_DIR={mano}" if mano else
-                    "not configured (built-in open hand is used; pass --mano-dir to use MANO)")
-    )  # fmt: skip
-    for line in lines:
+    for line in doctor_lines(__version__):
         _say(args, line, force=True)
     return 0
 
@@ -327,6 +322,8 @@ def _config_from_args(args):
         if getattr(args, flag, None):
             perception[flag] = getattr(args, flag)
             perception[role] = perception[role] or name
+    if getattr(args, "full_size_pictures", False):
+        cfg = replace(cfg, full_size_pictures=True)
     perception = {k: v for k, v in perception.items() if v}
     if perception:
         cfg = replace(cfg, perception=replace(cfg.perception, **perception))
@@ -379,6 +376,40 @@ def _check_out_dir(out: Path) -> None:
     from easyhoi.limits import check_output_folder
 
     check_output_folder(out)
+
+
+def _check_reconstruct_early(args) -> None:
+    """The checks of ``reconstruct`` that need no torch: run before torch is imported."""
+    _prompts_from_args(args)  # malformed prompts first, as cmd_reconstruct reports them
+    _check_out_dir(Path(args.out))
+    if len(args.images) == 1:
+        _check_photo(Path(args.images[0]))
+
+
+def _check_photo(path: Path) -> None:
+    """Refuse a photo that is missing or not an image before torch and the models load.
+
+    Only the file's header is read (the photo is decoded once, later); a file that is an image
+    but corrupt further in still fails, with the same error, when it is decoded.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    if not path.exists():
+        raise InvalidInputError(f"image file not found: {path}")
+    if not path.is_file():
+        raise InvalidInputError(f"image path is not a file: {path}")
+    if path.stat().st_size == 0:
+        raise InvalidInputError(f"image file is empty (0 bytes): {path}")
+    try:
+        with Image.open(path):
+            pass
+    except UnidentifiedImageError:
+        raise InvalidInputError(
+            f"cannot read {path}: not an image in a supported format (JPEG, PNG, WebP, BMP, "
+            "TIFF...)"
+        ) from None
+    except OSError as exc:
+        raise InvalidInputError(f"cannot read {path}: {exc}") from None
 
 
 def _provided_from_args(args):
@@ -474,6 +505,12 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("-v", "--verbose", action="store_true", help="debug logs and tracebacks")
 
 
+def _add_picture_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--full-size-pictures", action="store_true",
+                   help="draw the result pictures at the photo's full size (slower; default: "
+                   "at the size the report shows them)")  # fmt: skip
+
+
 def _add_model_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hand-model", choices=("open", "mano"), default="open",
                    help="hand model: built-in open hand (default) or your MANO file")  # fmt: skip
@@ -487,22 +524,24 @@ def _add_device_option(p: argparse.ArgumentParser) -> None:
                         "auto = cuda when torch sees a GPU)")  # fmt: skip
 
 
-def _set_torch_threads() -> None:
+def _set_torch_threads(args) -> None:
     """One torch thread unless EASYHOI_TORCH_THREADS says otherwise.
 
     easyhoi's tensors are small (a few thousand vertices, <= 256 px masks): on this workload extra
     intra-op threads cost more in synchronisation than they save, badly so on a loaded machine.
+    Commands that never use torch (``doctor``) do not import it: importing torch costs a second.
     """
     import os
-
-    import torch
 
     raw = os.environ.get("EASYHOI_TORCH_THREADS", "1")
     try:
         n = max(1, int(raw))
     except ValueError:
         raise InvalidInputError(f"EASYHOI_TORCH_THREADS must be an integer, got {raw!r}") from None
-    torch.set_num_threads(n)
+    if getattr(args, "uses_torch", True):
+        import torch
+
+        torch.set_num_threads(n)
 
 
 _OUT_HELP = (
@@ -563,13 +602,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="exit 9, writing nothing, when a mask has low confidence")  # fmt: skip
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
+    _add_picture_options(p)
     _add_common(p)
-    p.set_defaults(func=cmd_reconstruct)
+    p.set_defaults(func=cmd_reconstruct, check_early=_check_reconstruct_early)
 
     p = sub.add_parser("batch", help="every photo of a folder -> one result folder each")
     p.add_argument("folder", metavar="DIR", help="folder of photos")
     p.add_argument("--out", required=True, help="output folder (one subfolder per photo)")
-    p.add_argument("--workers", type=int, default=1, help="parallel workers (default 1)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="parallel worker processes, one torch thread each (default: one per "
+                   "CPU core)")  # fmt: skip
     p.add_argument("--engine", choices=("local", "ray", "inline"), default="local",
                    help="local process pool (default), ray, or inline (debugging)")  # fmt: skip
     p.add_argument("--ray-address", default=None,
@@ -594,8 +636,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument(flag, default=None, help=f"{role} backend (see `easyhoi doctor`)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
+    _add_picture_options(p)
     _add_common(p)
-    p.set_defaults(func=cmd_batch)
+    p.set_defaults(func=cmd_batch, check_early=_batch_images)
 
     p = sub.add_parser("example", help="synthetic photo -> full reconstruction (make demo)")
     p.add_argument("--out", default="outputs/demo", help="output folder")
@@ -657,7 +700,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("doctor", help="versions, backends and what is missing")
     _add_common(p)
-    p.set_defaults(func=cmd_doctor)
+    p.set_defaults(func=cmd_doctor, uses_torch=False)
     return parser
 
 
@@ -674,7 +717,9 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s")  # fmt: skip
     logger.setLevel(level)
     try:
-        _set_torch_threads()
+        if getattr(args, "check_early", None) is not None:
+            args.check_early(args)  # bad input fails in a fraction of a second, before torch
+        _set_torch_threads(args)
         return int(args.func(args) or 0)
     except EasyHOIError as exc:
         if args.verbose:
@@ -694,5 +739,39 @@ def main(argv: list[str] | None = None) -> int:
         return int(ExitCode.INTERNAL)
 
 
+def entry() -> None:
+    """The ``easyhoi`` console command: :func:`main`, then :func:`fast_exit` with its code."""
+    fast_exit(main())
+
+
+def fast_exit(code: int) -> None:
+    """End the process with ``code`` without Python's module teardown.
+
+    Python's own shutdown of a process that imported torch and the perception libraries
+    costs 0.5 to 1.3 s of CPU (clearing every module and freeing their objects) for nothing:
+    the process ends anyway. The exit handlers still run (logging, temporary files, worker
+    pools) and the output streams are flushed; only the teardown is skipped. When a
+    non-daemon thread is still running, the ordinary exit (which waits for it) is used.
+    """
+    import threading
+
+    others = [t for t in threading.enumerate()
+              if t is not threading.main_thread() and not t.daemon and t.is_alive()]  # fmt: skip
+    run_exit_handlers = getattr(__import__("atexit"), "_run_exitfuncs", None)
+    if others or run_exit_handlers is None:
+        sys.exit(code)
+    import os
+
+    try:
+        run_exit_handlers()
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):  # closed or broken pipe: nothing more to write
+                pass
+        os._exit(code)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    entry()

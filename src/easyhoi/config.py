@@ -393,6 +393,10 @@ class EasyHOIConfig:
     """Hand model: "open" (built in) or "mano" (needs the user's MANO_RIGHT.pkl in mano_dir)."""
     mano_dir: str | None = None
     """Folder holding MANO_RIGHT.pkl (and MANO_LEFT.pkl); used when hand_model is "mano"."""
+    full_size_pictures: bool = False
+    """Result pictures at the photo's full size; by default they are drawn at the size they are
+    shown (overlay at most 1024 px, figure panels at their size in the figure), which is several
+    times cheaper."""
     name: str = "custom"
     """Name of the preset this configuration came from (provenance only)."""
     device: str = "auto"

@@ -13,10 +13,12 @@ Engines (:func:`execute` yields results in completion order):
     A :class:`concurrent.futures.ProcessPoolExecutor` with ``workers`` processes, started with
     ``"forkserver"`` where the platform has it (a server process imports easyhoi and torch
     once, then every worker is forked from it in milliseconds; pools restarted after a crash
-    reuse it) and ``"spawn"`` elsewhere. Each process uses ``max(1, cores // workers)`` torch
-    threads. At most ``workers`` tasks are in flight, so a process that dies (killed for memory,
-    a segfault in native code) can be pinned down: the tasks that were running are retried one
-    at a time in a fresh pool, and a task that kills its process again is recorded as failed.
+    reuse it) and ``"spawn"`` elsewhere. Each process uses one torch thread (see
+    :data:`DEFAULT_THREADS`) and stays alive for the whole batch, so imports, compiled kernels
+    and the hand model are loaded once per process, not once per photo. At most ``workers``
+    tasks are in flight, so a process that dies (killed for memory, a segfault in native code)
+    can be pinned down: the tasks that were running are retried one at a time in a fresh pool,
+    and a task that kills its process again is recorded as failed.
 ``"ray"``
     Ray tasks (the ``[distributed]`` extra). ``ray.init(address=...)`` joins an existing cluster;
     without an address a local cluster bound to 127.0.0.1 with ``num_cpus=workers`` and no
@@ -56,6 +58,7 @@ from easyhoi.errors import (
 )
 
 __all__ = [
+    "DEFAULT_THREADS",
     "ENGINES",
     "EXIT_INTERNAL",
     "Task",
@@ -136,8 +139,19 @@ def available_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: Torch threads per worker process unless told otherwise. easyhoi's tensors are small (a few
+#: thousand vertices, masks of at most 256 px): a second intra-op thread costs more in
+#: synchronisation than it saves (one worker with 2 threads ran 2.5x slower than with 1 on a
+#: 2-core machine), so parallelism comes from worker processes, one per core.
+DEFAULT_THREADS = 1
+
+
 def threads_per_worker(workers: int, cores: int | None = None) -> int:
-    """Torch threads for each of ``workers`` processes: ``max(1, cores // workers)``."""
+    """Threads that spread ``cores`` over ``workers`` processes: ``max(1, cores // workers)``.
+
+    Not the default (:data:`DEFAULT_THREADS`); pass it as ``threads`` to :func:`execute` for
+    workloads with large tensors.
+    """
     cores = available_cores() if cores is None else cores
     return max(1, cores // max(1, workers))
 
@@ -233,7 +247,7 @@ def execute(
         worker (callable): Picklable ``worker(task) -> dict | None`` (see the module docstring).
         engine ({"local", "ray", "inline"}): Where to run (see the module docstring).
         workers (int): Parallel worker processes (local) or Ray CPUs of the local cluster; >= 1.
-        threads (int or None): Torch threads per worker (None: ``max(1, cores // workers)``);
+        threads (int or None): Torch threads per worker (None: :data:`DEFAULT_THREADS`);
             ignored inline.
         ray_address (str or None): Address of an existing Ray cluster (``"auto"``,
             ``"127.0.0.1:6379"``...); None starts a local one.
@@ -261,7 +275,7 @@ def execute(
     keys = [t.key for t in tasks]
     if len(set(keys)) != len(keys):
         raise InvalidInputError("task keys must be unique within a batch")
-    threads = threads_per_worker(workers) if threads is None else max(1, int(threads))
+    threads = DEFAULT_THREADS if threads is None else max(1, int(threads))
     if engine == "inline":
         return (run_task(worker, t) for t in tasks)
     _check_picklable(worker)

@@ -66,7 +66,7 @@ def check_image_header(path: str | os.PathLike) -> tuple[int, int]:
         InputTooLargeError: More than :data:`MAX_IMAGE_FILE_BYTES` bytes or
             :data:`MAX_IMAGE_PIXELS` pixels.
     """
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
 
     p = Path(path)
     if not p.exists():
@@ -93,12 +93,8 @@ def check_image_header(path: str | os.PathLike) -> tuple[int, int]:
             f"image {p} is too large: {count}; at most {MAX_IMAGE_PIXELS / 1e6:.0f} MP are "
             "accepted (downscale the photo first)"
         ) from exc
-    except UnidentifiedImageError as exc:
-        raise InvalidInputError(
-            f"cannot read {p}: not an image in a supported format (JPEG, PNG, WebP, BMP, TIFF...)"
-        ) from exc
     except (OSError, SyntaxError, ValueError) as exc:
-        raise InvalidInputError(f"cannot decode image {p}: corrupt or truncated ({exc})") from exc
+        raise unreadable_image_error(p, exc) from exc
     if w * h > MAX_IMAGE_PIXELS:
         raise image_size_error(p, w, h)
     return int(w), int(h)
@@ -187,3 +183,15 @@ def declared_face_count(path: str | os.PathLike) -> int | None:
     except OSError:
         return None
     return None
+
+
+def unreadable_image_error(path, exc: Exception) -> InvalidInputError:
+    """The error for a file Pillow cannot identify (not an image) or cannot decode (corrupt)."""
+    from PIL import UnidentifiedImageError
+
+    if isinstance(exc, UnidentifiedImageError):
+        return InvalidInputError(
+            f"cannot read {path}: not an image in a supported format (JPEG, PNG, WebP, BMP, "
+            "TIFF...)"
+        )
+    return InvalidInputError(f"cannot decode image {path}: corrupt or truncated ({exc})")

@@ -89,8 +89,9 @@ def reconstruct_photo(
         from easyhoi.result_folder import write_result_folder
 
         files = write_result_folder(
-            result, inp, folder, hand_model=run.hand_model, title=Path(image_path).name
-        )
+            result, inp, folder, hand_model=run.hand_model, title=Path(image_path).name,
+            full_size=run.config.full_size_pictures,
+        )  # fmt: skip
     return Reconstruction(result, inp, report.to_dict(), files, time.perf_counter() - t0)
 
 

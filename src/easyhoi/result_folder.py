@@ -49,6 +49,7 @@ def write_result_folder(
     *,
     hand_model=None,
     title: str = "",
+    full_size: bool = False,
 ) -> list[Path]:
     """Write every output of one photo into ``folder`` (created, or replaced once complete).
 
@@ -59,6 +60,9 @@ def write_result_folder(
         hand_model: The run's hand model; it poses the hands of the stage snapshots in
             ``stages.png`` (None: only the final stage shows the hand).
         title: The report's heading (e.g. the photo's file name; default the folder's name).
+        full_size: Pictures at the photo's full size (``--full-size-pictures``) instead of at
+            most :data:`easyhoi.viz.report.PICTURE_MAX_SIDE` pixels, with figure panels drawn
+            at the size they are shown.
 
     Returns:
         The files of :data:`RESULT_FILES` at their final location.
@@ -75,20 +79,24 @@ def write_result_folder(
     final = Path(folder)
 
     def fill(tmp: Path) -> None:
-        _write_all(result, inp, tmp, hand_model, title or final.name)
+        _write_all(result, inp, tmp, hand_model, title or final.name, full_size)
 
     publish_folder(final, fill, RESULT_FILES)
     return [final / f for f in RESULT_FILES]
 
 
-def _write_all(result: HOIResult, inp: HOIInput, folder: Path, hand_model, title: str) -> None:
+def _write_all(
+    result: HOIResult, inp: HOIInput, folder: Path, hand_model, title: str, full_size: bool
+) -> None:
     from easyhoi.viz import report
 
     export_glb(result, folder / "scene.glb")
     export_ply(result.hand_mesh().apply_scale(result.metric_scale), folder / "hand.ply")
     export_ply(result.object_mesh_metric(), folder / "object.ply")
     write_result_json(result, folder / "result.json")
-    pictures = report.render_pictures(*report.picture_scale(result, inp), hand_model=hand_model)
+    max_side = None if full_size else report.PICTURE_MAX_SIDE
+    small = report.picture_scale(result, inp, max_side)
+    pictures = report.render_pictures(*small, hand_model=hand_model, full_size=full_size)
     for name, data in pictures.items():
         atomic_write_bytes(folder / name, data)
     report.write_report(result, inp, folder, images=pictures, title=title)

@@ -63,9 +63,9 @@ def check_image(image: np.ndarray, name: str = "image") -> np.ndarray:
 
 
 def _open(path: str | Path):
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
 
-    from easyhoi.limits import check_image_header
+    from easyhoi.limits import check_image_header, unreadable_image_error
 
     p = Path(path)
     check_image_header(p)  # missing, empty, too many bytes or pixels: refused before decoding
@@ -74,12 +74,8 @@ def _open(path: str | Path):
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             img = Image.open(p)
             img.load()
-    except UnidentifiedImageError as exc:
-        raise InvalidInputError(
-            f"cannot read {p}: not an image in a supported format (JPEG, PNG, WebP, BMP, TIFF...)"
-        ) from exc
     except (OSError, SyntaxError, ValueError) as exc:
-        raise InvalidInputError(f"cannot decode image {p}: corrupt or truncated ({exc})") from exc
+        raise unreadable_image_error(p, exc) from exc
     return img
 
 

@@ -44,6 +44,7 @@ import torch
 from easyhoi.config import CameraStageConfig, OptimConfig
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import StageResult
+from easyhoi.optim.adam import Adam
 from easyhoi.optim.loop import StageLoop, early_stop, restore, run_phases, snapshot
 from easyhoi.optim.losses import sinkhorn_mask_loss, soft_iou_loss
 from easyhoi.optim.state import SILHOUETTE_SIGMA, Scene, hard_iou
@@ -258,7 +259,7 @@ def fit_camera(
     start = time.perf_counter()
     params = _CameraParams(cam0, scene.center, scene.extent, cfg.optimise_focal)
     loop = StageLoop("camera", cfg.max_iters, optim_cfg.history_every, progress)
-    opt = torch.optim.Adam(params.tensors(), lr=cfg.lr)
+    opt = Adam(params.tensors(), lr=cfg.lr)
 
     def begin(frac):
         h, w = scene.render_size(frac, optim_cfg.render_size)

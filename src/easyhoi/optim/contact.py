@@ -59,6 +59,7 @@ import torch
 from easyhoi.config import ContactStageConfig, OptimConfig
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import HOIInput, StageResult
+from easyhoi.optim.adam import Adam
 from easyhoi.optim.loop import StageLoop, early_stop, run_phases
 from easyhoi.optim.losses import soft_iou_loss
 from easyhoi.optim.placement import camera_hand_to_object, hand_in_camera, move_hand, rest_wrist
@@ -306,7 +307,7 @@ def fit_contact(
     """
     start = time.perf_counter()
     loop = StageLoop("contact", cfg.max_iters, optim_cfg.history_every, progress)
-    opt = torch.optim.Adam([state.r, state.delta], lr=cfg.lr)
+    opt = Adam([state.r, state.delta], lr=cfg.lr)
     sdf_res = optim_cfg.refine.sdf_resolution
     due = [r for r in cfg.register_at if r < cfg.max_iters]
     registrations: list[dict] = []

@@ -36,6 +36,7 @@ import torch
 from easyhoi.config import OptimConfig, RefineStageConfig
 from easyhoi.hand.regions import DIGIT_JOINTS
 from easyhoi.hoi import StageResult
+from easyhoi.optim.adam import Adam
 from easyhoi.optim.loop import StageLoop, restore, run_phases, snapshot
 from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
 from easyhoi.optim.state import Scene, hard_iou
@@ -150,7 +151,7 @@ def fit_refine(
         groups.append({"params": [delta], "lr": lr_t})
     if cfg.optimise_pose:
         groups.append({"params": [pose], "lr": cfg.lr_pose})
-    opt = torch.optim.Adam(groups) if groups else None
+    opt = Adam(groups) if groups else None
     loop = StageLoop("refine", cfg.max_iters, optim_cfg.history_every, progress)
     current = lambda: p0.__class__(go, tr0 + unit * delta, pose, p0.betas, p0.side)  # noqa: E731
     camera = camera.detach().to(dt)

@@ -1,4 +1,5 @@
-"""Compiled (numba) CPU kernels: culled soft silhouette (forward, analytic backward), z-buffer.
+"""Compiled (numba) CPU kernels: culled soft silhouette (forward, analytic backward), z-buffer
+(depth, and optionally the nearest face's index, of every pixel).
 
 Soft silhouette: same mathematics as the PyTorch kernel in :mod:`easyhoi.render.soft`, but
 the (pixel, face) pairs are never materialised: every face walks the pixels of its grown
@@ -254,17 +255,20 @@ def soft_logsum_backward(tri, base, height, width, inv_sigma, margin, grad_out, 
 
 
 @numba.njit(cache=True)
-def zbuffer(tri, tri_z, height, width, out):
+def zbuffer(tri, tri_z, height, width, out, ids=None):
     """Nearest camera z per pixel (``out`` (H * W,), pre-filled with ``inf``), no gradients.
 
     Same rules as :func:`easyhoi.render.raster.rasterize`: pixel centres, bounding-box
     candidates, exact inside test with the top-left rule on the counter-clockwise-oriented
     triangle, degenerate triangles never hit, perspective-correct depth
-    ``1 / sum_i (l_i / z_i)`` with screen barycentrics ``l``.
+    ``1 / sum_i (l_i / z_i)`` with screen barycentrics ``l``. Of faces at exactly the same
+    depth the first one (lowest index) is kept, as the stable sort of ``rasterize`` does.
 
     Args:
         tri: (N, 6) corners ``ax ay bx by cx cy`` in pixels.
         tri_z: (N, 3) camera z of the corners.
+        ids: (H * W,) int64, pre-filled with -1, or None: receives the index (into ``tri``) of
+            the nearest face. Without it the kernel is compiled without the id writes.
     """
     for f in range(tri.shape[0]):
         ax, ay, bx, by, cx, cy = tri[f, 0], tri[f, 1], tri[f, 2], tri[f, 3], tri[f, 4], tri[f, 5]
@@ -300,6 +304,8 @@ def zbuffer(tri, tri_z, height, width, out):
                 k = row * width + col
                 if d < out[k]:
                     out[k] = d
+                    if ids is not None:
+                        ids[k] = f
 
 
 @numba.njit(cache=True)

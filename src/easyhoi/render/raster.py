@@ -299,3 +299,38 @@ def depth_map(verts, faces, camera: Camera, near: float = 1e-3) -> torch.Tensor:
         d, _, _ = _interp(tri, tri_z[face], None, p)
         out.scatter_reduce_(0, pix, d, reduce="amin")
     return out.view(H, W)
+
+
+@torch.no_grad()
+def face_buffer(verts, faces, camera: Camera, near: float = 1e-3):
+    """Z-buffer with face ids (no gradients): the nearest face and its camera z per pixel.
+
+    The compiled kernel when numba is in use (the pictures of a result are drawn with it: tens
+    of times faster than :func:`rasterize`), else :func:`rasterize` with one layer. Both keep
+    the same face at every pixel (of faces at exactly the same depth, the lowest index).
+
+    Args:
+        verts: (V, 3) world-space vertices.
+        faces: (F, 3) integer vertex indices.
+        camera: the camera.
+        near: faces with a vertex at camera z < ``near`` are dropped.
+
+    Returns:
+        face_ids: (H, W) long, index into ``faces``; -1 where the ray misses.
+        depth: (H, W) camera z of the nearest surface, ``inf`` where the ray misses.
+    """
+    v, f, camera, near = _prepare(verts, faces, camera, near, 1)
+    H, W = camera.height, camera.width
+    dev, dtype = camera.K.device, camera.K.dtype
+    if v.shape[1] and f.shape[0] and get_backend() == "numba" and dev.type == "cpu":
+        tri_uv, tri_z, keep = project_faces(v, f, camera, near)
+        depth = torch.full((H * W,), float("inf"), dtype=dtype)
+        ids = torch.full((H * W,), -1, dtype=torch.long)
+        tri = tri_uv.reshape(-1, 6).contiguous().numpy()
+        z = tri_z.contiguous().numpy()
+        if numba_call("zbuffer", tri, z, H, W, depth.numpy(), ids.numpy()):
+            hit = ids >= 0
+            ids[hit] = keep[ids[hit]]
+            return ids.view(H, W), depth.view(H, W)
+    frag = rasterize(v[0], f, camera, num_layers=1, near=near)
+    return frag.face_ids[..., 0], frag.depth[..., 0]

@@ -15,6 +15,7 @@ import trimesh
 from easyhoi.geometry.sdf import SDFGrid, exact_signed_distance, query
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hand.regions import DIGIT_JOINTS
+from easyhoi.optim.adam import Adam
 
 __all__: list[str] = []
 
@@ -101,9 +102,9 @@ def _refine(poser, mesh, pose0, R0, T0, groups, iterations, w_pen, w_att, w_reg)
     pose = pose0.clone().requires_grad_(True)
     drot = torch.zeros(3, dtype=torch.float64, requires_grad=True)
     dt = torch.zeros(3, dtype=torch.float64, requires_grad=True)
-    opt = torch.optim.Adam([{"params": [pose], "lr": 0.01},
-                            {"params": [drot], "lr": 0.005},
-                            {"params": [dt], "lr": 0.001}])  # fmt: skip
+    opt = Adam([{"params": [pose], "lr": 0.01},
+                {"params": [drot], "lr": 0.005},
+                {"params": [dt], "lr": 0.001}])  # fmt: skip
     groups = [torch.as_tensor(g) for g in groups if len(g)]
 
     def place():

@@ -21,6 +21,7 @@ from easyhoi.geometry.transforms import axis_angle_to_matrix, matrix_to_axis_ang
 from easyhoi.hand.base import HandModel
 from easyhoi.hand.lbs import forward_kinematics
 from easyhoi.hand.regions import DIGIT_JOINTS, flexion_axes
+from easyhoi.optim.adam import Adam
 from easyhoi.structures import HandParams
 
 #: Grasp types with a synergy.
@@ -134,7 +135,7 @@ def _fit_thumb(poser, base: np.ndarray, target_ids, free: tuple[str, ...], iters
     scale_mask[free_rows] = 1.0
     th = torch.zeros(9, dtype=torch.float64, requires_grad=True)
     log_s = torch.zeros(1, dtype=torch.float64, requires_grad=bool(free))
-    opt = torch.optim.Adam([th, log_s], lr=0.05)
+    opt = Adam([th, log_s], lr=0.05)
     for _ in range(iters):
         opt.zero_grad()
         p = base_t * (1 + scale_mask * (torch.exp(log_s) - 1))

@@ -14,8 +14,14 @@ import torch
 from easyhoi.errors import InvalidInputError
 from easyhoi.hoi import HOIInput, HOIResult
 from easyhoi.render.raster import depth_map
-from easyhoi.viz.overlay import _check_result, photo_camera, render_overlay, result_meshes
-from easyhoi.viz.plots import figure_png, new_figure
+from easyhoi.viz.overlay import (
+    _check_result,
+    photo_camera,
+    render_overlay,
+    result_meshes,
+    shrink_photo,
+)
+from easyhoi.viz.plots import FIGURE_DPI, figure_png, new_figure
 
 __all__ = ["MASK_PAIRS", "mask_iou", "mask_ious", "masks_png", "rendered_masks"]
 
@@ -79,11 +85,12 @@ def _compare(input_mask: np.ndarray, rendered: np.ndarray) -> np.ndarray:
     return out
 
 
-def masks_png(result: HOIResult, inp: HOIInput) -> bytes:
+def masks_png(result: HOIResult, inp: HOIInput, full_size: bool = False) -> bytes:
     """Figure: top row photo and input masks, bottom row overlay and input-vs-rendered maps.
 
     Bottom-row colours: green where both masks agree, red for input only, blue for rendered
-    only; each title gives the IoU.
+    only; each title gives the IoU (computed at the input's size). The overlay is drawn at the
+    panel's size in the figure, or at the photo's size with ``full_size``.
     """
     from matplotlib.patches import Patch
 
@@ -100,7 +107,8 @@ def masks_png(result: HOIResult, inp: HOIInput) -> bytes:
     )
     top = [("input photo", inp.image, None)]
     top += [(f"input {label}", getattr(inp, i), "gray") for i, _, label in MASK_PAIRS]
-    bottom = [("reconstruction overlay", render_overlay(result, inp.image).image, None)]
+    photo = shrink_photo(inp.image, None if full_size else round(panel_w * FIGURE_DPI))
+    bottom = [("reconstruction overlay", render_overlay(result, photo).image, None)]
     for i, r, label in MASK_PAIRS:
         iou = mask_iou(getattr(inp, i), rendered[r])
         name = r.replace("_", " ")

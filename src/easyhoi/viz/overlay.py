@@ -19,6 +19,7 @@ __all__ = [
     "photo_camera",
     "render_overlay",
     "result_meshes",
+    "shrink_photo",
     "stage_meshes",
 ]
 
@@ -89,6 +90,22 @@ def photo_camera(camera: Camera, image: np.ndarray) -> Camera:
     if (camera.height, camera.width) == (H, W):
         return camera
     return camera.resized(W, H)
+
+
+def shrink_photo(image: np.ndarray, width: int | None) -> np.ndarray:
+    """``image`` downscaled (area average, aspect kept) to ``width`` pixels when it is wider.
+
+    Overlays drawn on the result take the camera from the image's size
+    (:func:`photo_camera`), so a picture shown small is also drawn small: the rasterizer's and
+    the PNG encoder's work grow with the pixel count.
+    """
+    H, W = image.shape[:2]
+    if width is None or W <= width:
+        return image
+    import cv2
+
+    h = max(1, round(H * width / W))
+    return cv2.resize(image, (int(width), h), interpolation=cv2.INTER_AREA)
 
 
 def _check_image(image) -> np.ndarray:

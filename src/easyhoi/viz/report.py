@@ -132,18 +132,19 @@ PICTURE_MAX_SIDE = 1024
 
 
 def picture_scale(
-    result: HOIResult, inp: HOIInput, max_side: int = PICTURE_MAX_SIDE
+    result: HOIResult, inp: HOIInput, max_side: int | None = PICTURE_MAX_SIDE
 ) -> tuple[HOIResult, HOIInput]:
     """``result`` and ``inp`` at picture size: photo, masks and every camera downscaled.
 
-    Returns the arguments unchanged when the photo's longer side is at most ``max_side``.
+    Returns the arguments unchanged when the photo's longer side is at most ``max_side``, or
+    when ``max_side`` is None (full-size pictures).
     """
     from dataclasses import replace
 
     import cv2
 
     H, W = inp.image.shape[:2]
-    if max(H, W) <= max_side:
+    if max_side is None or max(H, W) <= max_side:
         return result, inp
     s = max_side / max(H, W)
     w, h = max(1, round(W * s)), max(1, round(H * s))
@@ -170,7 +171,9 @@ def picture_scale(
     return replace(result, camera=cam(result.camera), stages=stages), small_inp
 
 
-def render_pictures(result: HOIResult, inp: HOIInput, hand_model=None) -> dict[str, bytes]:
+def render_pictures(
+    result: HOIResult, inp: HOIInput, hand_model=None, full_size: bool = False
+) -> dict[str, bytes]:
     """PNG bytes of every picture in :data:`PICTURES` (the expensive part of a report).
 
     Args:
@@ -178,6 +181,8 @@ def render_pictures(result: HOIResult, inp: HOIInput, hand_model=None) -> dict[s
         inp: Its input (photo and masks).
         hand_model: The run's hand model, posing the stage snapshots' hands (None: only the
             final stage shows the hand).
+        full_size: Draw the overlays inside the figures at the photo's size instead of the
+            size of their panels.
     """
     from easyhoi.viz.masks import masks_png
     from easyhoi.viz.overlay import render_overlay
@@ -188,8 +193,8 @@ def render_pictures(result: HOIResult, inp: HOIInput, hand_model=None) -> dict[s
     return {
         "overlay.png": png_bytes(render_overlay(result, inp.image).image),
         "views.png": views_png(result),
-        "stages.png": stages_png(result, inp.image, hand_model),
-        "masks.png": masks_png(result, inp),
+        "stages.png": stages_png(result, inp.image, hand_model, full_size=full_size),
+        "masks.png": masks_png(result, inp, full_size=full_size),
         "losses.png": losses_png(result),
     }
 

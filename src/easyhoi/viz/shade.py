@@ -1,6 +1,7 @@
-"""Shaded rendering of triangle meshes with the project's hard rasterizer (no OpenGL).
+"""Shaded rendering of triangle meshes with the project's compiled z-buffer (no OpenGL).
 
-Every mesh of a scene is rasterized together (one z-buffer, so meshes occlude each other), each
+Every mesh of a scene is rasterized together (one z-buffer of face ids,
+:func:`easyhoi.render.raster.face_buffer`, so meshes occlude each other), each
 pixel is shaded with Lambert lighting (two lights fixed to the camera plus an ambient term) from
 crease-aware interpolated normals, and the result is alpha-blended over a background image or a
 plain colour. Pixels no mesh covers keep the background exactly.
@@ -10,12 +11,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import torch
 
 from easyhoi.errors import InvalidInputError
-from easyhoi.render.raster import rasterize
+from easyhoi.render.raster import face_buffer
 from easyhoi.structures import Camera
 
 __all__ = [
@@ -72,6 +74,11 @@ class SceneMesh:
         object.__setattr__(self, "faces", f.astype(np.int64))
         object.__setattr__(self, "color", c)
 
+    @cached_property
+    def corner_normals(self) -> np.ndarray:
+        """(F, 3, 3) :func:`corner_normals` of the mesh, computed once (views reuse a mesh)."""
+        return corner_normals(self.vertices, self.faces)
+
 
 @dataclass(frozen=True)
 class Render:
@@ -125,8 +132,8 @@ def corner_normals(vertices: np.ndarray, faces: np.ndarray, crease_deg: float = 
     pair_face = corner_face[order[starts[corner_vertex[pair_corner]] + offset]]
     own = unit[corner_face[pair_corner]]
     keep = (own * unit[pair_face]).sum(1) >= np.cos(np.radians(crease_deg))
-    acc = np.zeros((len(corner_vertex), 3))
-    np.add.at(acc, pair_corner[keep], cross[pair_face[keep]])
+    corner, w = pair_corner[keep], cross[pair_face[keep]]
+    acc = np.stack([np.bincount(corner, w[:, j], len(corner_vertex)) for j in range(3)], axis=1)
     n = np.linalg.norm(acc, axis=1, keepdims=True)
     out = np.where(n > 1e-30, acc / np.maximum(n, 1e-30), unit[corner_face])
     return out.reshape(len(f), 3, 3)
@@ -183,29 +190,32 @@ def render_shaded(
     offsets = np.cumsum([0] + [len(m.vertices) for m in meshes])
     faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets[:-1], strict=True)])
     face_start = np.cumsum([0] + [len(m.faces) for m in meshes])
-    normals = np.concatenate([corner_normals(m.vertices, m.faces) for m in meshes])
     colors = np.array([m.color for m in meshes], dtype=np.float64)
 
-    frag = rasterize(torch.tensor(verts), torch.tensor(faces), cam)
-    fid = frag.face_ids[..., 0].numpy()
+    fid, z = face_buffer(torch.from_numpy(verts), torch.from_numpy(faces), cam)
+    fid = fid.numpy()
     hit = fid >= 0
     if not hit.any():
         return Render(bg, labels, depth)
-    depth[hit] = frag.depth[..., 0].numpy()[hit]
+    depth[hit] = z.numpy()[hit]
     f = fid[hit]
     labels[hit] = np.searchsorted(face_start, f, side="right") - 1
-    bary = frag.bary[..., 0, :].numpy()[hit]
-    R = cam.R.numpy()
-    n = (bary[:, :, None] * normals[f]).sum(1) @ R.T  # camera frame
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-    p = frag.points[..., 0, :].numpy()[hit] @ R.T + cam.t.numpy()
-    to_eye = -p / np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-30)
-    n = np.where(((n * to_eye).sum(1) < 0)[:, None], -n, n)  # two-sided
+    vt = torch.from_numpy(verts)
+    uv = cam.project(vt)[0].numpy()
+    p_cam = cam.world_to_camera(vt).numpy()
+    bary = _perspective_bary(uv, p_cam[:, 2], faces[f], np.flatnonzero(hit), W)
+    normals = np.concatenate([m.corner_normals for m in meshes])
+    normals = normals @ cam.R.numpy().T  # camera frame
+    n = np.einsum("pk,pkj->pj", bary, normals[f])
+    n /= np.maximum(np.sqrt(np.einsum("pj,pj->p", n, n)), 1e-30)[:, None]
+    p = np.einsum("pk,pkj->pj", bary, p_cam[faces[f]])
+    # two-sided: a normal facing away from the eye (n . p > 0, the eye at the origin) is flipped
+    n[np.einsum("pj,pj->p", n, p) > 0] *= -1.0
     light = np.full(len(n), _AMBIENT)
     for direction, weight in _LIGHTS:
         d = direction / np.linalg.norm(direction)
-        light += weight * np.clip(n @ d, 0.0, None)
-    shade = colors[labels[hit]] * np.clip(light, 0.0, 1.0)[:, None]
+        light += weight * np.maximum(n @ d, 0.0)
+    shade = colors[labels[hit]] * np.minimum(light, 1.0)[:, None]
     if outline:
         edge = _border(labels)[hit]
         shade[edge] *= 0.45
@@ -214,6 +224,35 @@ def render_shaded(
     image = np.clip(np.rint(out), 0, 255).astype(np.uint8)
     image[~hit] = bg[~hit]
     return Render(image, labels, depth)
+
+
+def _perspective_bary(
+    uv: np.ndarray, z: np.ndarray, tri: np.ndarray, pix: np.ndarray, width: int
+) -> np.ndarray:
+    """Perspective-correct barycentrics of pixel centres in the faces seen there.
+
+    The rasterizer's arithmetic (:mod:`easyhoi.render.raster`): edge functions of the
+    projected corners at the pixel centre give the screen barycentrics ``l``; the
+    perspective-correct ones are ``(l_i / z_i) / sum_j (l_j / z_j)``.
+
+    Args:
+        uv: (V, 2) pixel coordinates of the vertices.
+        z: (V,) camera z of the vertices.
+        tri: (P, 3) vertex indices of the face seen at each pixel.
+        pix: (P,) flat pixel index ``row * width + col``.
+        width: image width.
+
+    Returns:
+        (P, 3) float64, rows summing to 1.
+    """
+    c = uv[tri]  # (P, 3, 2)
+    px = (pix % width + 0.5)[:, None]
+    py = (pix // width + 0.5)[:, None]
+    e = np.roll(c, -1, axis=1) - c  # edge k: corner k -> k + 1
+    w = e[..., 0] * (py - c[..., 1]) - e[..., 1] * (px - c[..., 0])
+    area2 = e[:, 0, 0] * (-e[:, 2, 1]) - e[:, 0, 1] * (-e[:, 2, 0])
+    q = np.stack([w[:, 1], w[:, 2], w[:, 0]], axis=1) / area2[:, None] / z[tri]
+    return q / q.sum(axis=1, keepdims=True)
 
 
 def _border(labels: np.ndarray) -> np.ndarray:

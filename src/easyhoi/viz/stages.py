@@ -12,9 +12,16 @@ from easyhoi.viz.overlay import (
     _check_result,
     render_overlay,
     result_meshes,
+    shrink_photo,
     stage_meshes,
 )
-from easyhoi.viz.plots import figure_png, new_figure, stage_loss_series
+from easyhoi.viz.plots import (
+    FIGURE_DPI,
+    figure_png,
+    fixed_margins,
+    new_figure,
+    stage_loss_series,
+)
 
 __all__ = ["render_stages", "stages_png"]
 
@@ -22,7 +29,7 @@ _PANEL_IN = 3.6
 
 
 def render_stages(
-    result: HOIResult, image: np.ndarray, hand_model=None
+    result: HOIResult, image: np.ndarray, hand_model=None, width: int | None = None
 ) -> list[tuple[str, np.ndarray, str]]:
     """Overlays of every stage snapshot.
 
@@ -31,14 +38,16 @@ def render_stages(
         image: (H, W, 3) uint8, the photo.
         hand_model: The run's hand model, posing the snapshots' hands; without it the earlier
             snapshots show the object only.
+        width: Draw the overlays this many pixels wide (the photo downscaled, aspect kept)
+            when the photo is wider; None draws them at the photo's size.
 
     Returns:
-        ``(name, (H, W, 3) uint8 overlay, note)`` per stage, in stage order; ``note`` is empty
+        ``(name, (h, w, 3) uint8 overlay, note)`` per stage, in stage order; ``note`` is empty
         or says why the hand is missing. A result without stages gives one panel
         ``("final", ...)``.
     """
     result = _check_result(result)
-    image = _check_image(image)
+    image = shrink_photo(_check_image(image), width)
     if not result.stages:
         return [("final", render_overlay(result, image).image, "")]
     out = []
@@ -62,11 +71,18 @@ def _summary(stage) -> str:
     return ", ".join(parts)
 
 
-def stages_png(result: HOIResult, image: np.ndarray, hand_model=None) -> bytes:
-    """One figure with an overlay panel per stage, titled with the stage's final loss."""
+def stages_png(
+    result: HOIResult, image: np.ndarray, hand_model=None, full_size: bool = False
+) -> bytes:
+    """One figure with an overlay panel per stage, titled with the stage's final loss.
+
+    The overlays are drawn at the panels' size in the figure (``_PANEL_IN`` inches at the
+    figure's resolution), or at the photo's size with ``full_size``.
+    """
     from matplotlib.patches import Patch
 
-    panels = render_stages(result, image, hand_model)
+    panel_px = None if full_size else round(_PANEL_IN * FIGURE_DPI)
+    panels = render_stages(result, image, hand_model, width=panel_px)
     stages = {s.name: s for s in result.stages}
     n = len(panels)
     cols = min(n, 4)
@@ -90,5 +106,6 @@ def stages_png(result: HOIResult, image: np.ndarray, hand_model=None) -> bytes:
     meshes = result_meshes(result)
     handles = [Patch(color=np.array(m.color) / 255, label=m.name) for m in meshes]
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=9, frameon=False)
-    fig.tight_layout(rect=(0, 0.05, 1, 0.95))
+    # the suptitle and up to three lines of panel title above each row, the legend below
+    fixed_margins(fig, left=0.05, right=0.05, top=0.95, bottom=0.3, wspace=0.1, hspace=0.7)
     return figure_png(fig)

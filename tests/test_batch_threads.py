@@ -1,0 +1,44 @@
+"""Batch workers: one torch thread each, one worker per core by default."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from easyhoi.cli import _batch_workers, build_parser
+from easyhoi.distributed import DEFAULT_THREADS, Task, available_cores, execute
+
+
+def _threads_worker(task: Task) -> dict:
+    import torch
+
+    return {"threads": torch.get_num_threads(), "pid": os.getpid(),
+            "omp": os.environ.get("OMP_NUM_THREADS")}  # fmt: skip
+
+
+@pytest.mark.slow  # starts two worker processes that import torch (about 14 s when loaded)
+def test_local_workers_use_one_torch_thread_each():
+    tasks = [Task(f"p{i}", f"p{i}.jpg", f"out/p{i}", i) for i in range(4)]
+    results = list(execute(tasks, _threads_worker, engine="local", workers=2))
+    assert DEFAULT_THREADS == 1
+    assert sorted(r.key for r in results) == ["p0", "p1", "p2", "p3"]
+    assert all(r.ok for r in results), [r.error for r in results]
+    assert {r.info["threads"] for r in results} == {1}
+    assert {r.info["omp"] for r in results} == {"1"}
+    # the processes stay for the whole batch: at most two of them served the four photos
+    assert len({r.info["pid"] for r in results}) <= 2
+
+
+def test_batch_workers_default_to_the_cores(tmp_path):
+    parser = build_parser()
+    args = parser.parse_args(["batch", str(tmp_path), "--out", str(tmp_path / "o")])
+    assert args.workers is None
+    assert _batch_workers(args) == available_cores()
+    args = parser.parse_args(["batch", str(tmp_path), "--out", "o", "--workers", "3"])
+    assert _batch_workers(args) == 3
+    args = parser.parse_args(["batch", str(tmp_path), "--out", "o", "--engine", "inline"])
+    assert _batch_workers(args) == 1
+    # several photos given to reconstruct run inline in the one process
+    args = parser.parse_args(["reconstruct", "a.jpg", "b.jpg", "--out", "o"])
+    assert _batch_workers(args) == 1
