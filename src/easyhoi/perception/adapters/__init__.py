@@ -10,6 +10,7 @@ registry name                      module                extra (dependencies)
 ``("object", "depth")``            :mod:`.depth`         ``depth`` (transformers)
 ``("inpainter", "diffusion")``     :mod:`.diffusion`     ``diffusion`` (diffusers, transformers)
 ``("segmenter", "grounded-sam")``  :mod:`.grounded_sam`  ``sam`` (transformers)
+``("object", "shap-e")``           :mod:`.shap_e`        ``diffusion`` (diffusers, transformers)
 =================================  ====================  =======================================
 
 Weights are read with ``local_files_only=True`` from a folder the user gives (a folder written
