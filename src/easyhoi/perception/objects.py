@@ -77,12 +77,10 @@ class ObjectCrop:
 def object_crop(image: np.ndarray, mask: np.ndarray, pad: float = 0.1) -> ObjectCrop:
     """Square crop around the mask with a white background.
 
-    Parameters
-    ----------
-    image : (H, W, 3) uint8
-    mask : (H, W) bool
-    pad : float
-        Margin on each side as a fraction of the mask's larger bounding-box side, >= 0.
+    Args:
+        image: (H, W, 3) uint8
+        mask: (H, W) bool
+        pad (float): Margin on each side as a fraction of the mask's larger bounding-box side, >= 0.
     """
     m = _check_mask(mask, image)
     if not (np.isfinite(pad) and pad >= 0):
@@ -152,9 +150,8 @@ def _repair(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
 class SilhouetteReconstructor:
     """Object mesh from the amodal silhouette and the holding hand (see module docs).
 
-    Parameters
-    ----------
-    families : shape families to try (:data:`easyhoi.perception.shapes.FAMILIES`).
+    Args:
+        families: shape families to try (:data:`easyhoi.perception.shapes.FAMILIES`).
     """
 
     def __init__(self, families: tuple[str, ...] | None = None):
@@ -180,18 +177,16 @@ class SilhouetteReconstructor:
     ) -> trimesh.Trimesh:
         """Closed mesh of the object seen as ``mask``.
 
-        Parameters
-        ----------
-        image : (H, W, 3) uint8 hand-free photo or None (edge evidence of boxes).
-        mask : (H, W) bool amodal object mask.
-        visible_mask : (H, W) bool visible object mask (the rest of ``mask`` is inferred).
-        hand_mask : (H, W) bool visible hand (the outline behind it is unknown).
-        hand_keypoints2d, hand_keypoints3d : (21, 2) pixels and (21, 3) metres (camera-aligned,
-            any translation) of the holding hand: grip thickness and metric size.
+        Args:
+            image: (H, W, 3) uint8 hand-free photo or None (edge evidence of boxes).
+            mask: (H, W) bool amodal object mask.
+            visible_mask: (H, W) bool visible object mask (the rest of ``mask`` is inferred).
+            hand_mask: (H, W) bool visible hand (the outline behind it is unknown).
+            hand_keypoints2d, hand_keypoints3d: (21, 2) pixels and (21, 3) metres (camera-aligned,
+                any translation) of the holding hand: grip thickness and metric size.
 
-        Returns
-        -------
-        trimesh.Trimesh, watertight, outward winding, canonical frame (module docs).
+        Returns:
+            trimesh.Trimesh, watertight, outward winding, canonical frame (module docs).
         """
         m = _check_mask(mask, image)
         return shape_mesh(m, image, self.families, visible_mask, hand_mask, hand_keypoints2d,

@@ -32,11 +32,10 @@ __all__ = ["resolve_model_dir", "check_image", "check_bool_mask"]
 def resolve_model_dir(path: str | Path | None, what: str, marker: str | None = None) -> Path:
     """The existing local folder holding a model, or :class:`InvalidInputError`.
 
-    Parameters
-    ----------
-    path : folder given by the user.
-    what : model name for the message ("SAM", "depth", "inpainting").
-    marker : a file the folder must contain (``config.json``, ``model_index.json``).
+    Args:
+        path: folder given by the user.
+        what: model name for the message ("SAM", "depth", "inpainting").
+        marker: a file the folder must contain (``config.json``, ``model_index.json``).
     """
     if path is None:
         raise InvalidInputError(

@@ -53,18 +53,16 @@ def relief_mesh(
 ) -> trimesh.Trimesh:
     """Closed mesh from a front-surface prediction and the silhouette (see module docs).
 
-    Parameters
-    ----------
-    mask : (H, W) bool object mask (>= 16 pixels).
-    prediction : (H, W) float model output; "disparity" (larger = closer, what DPT and Depth
-        Anything predict) or "depth" (larger = farther).
-    relief : front relief range as a fraction of the largest half-width (auto scale).
-    depth_scale : pixels per model unit; overrides the automatic scale when given.
-    max_faces : face budget.
+    Args:
+        mask: (H, W) bool object mask (>= 16 pixels).
+        prediction: (H, W) float model output; "disparity" (larger = closer, what DPT and Depth
+            Anything predict) or "depth" (larger = farther).
+        relief: front relief range as a fraction of the largest half-width (auto scale).
+        depth_scale: pixels per model unit; overrides the automatic scale when given.
+        max_faces: face budget.
 
-    Returns
-    -------
-    trimesh.Trimesh, watertight, canonical frame, ``metadata["easyhoi"]["method"] == "depth"``.
+    Returns:
+        trimesh.Trimesh, watertight, canonical frame, ``metadata["easyhoi"]["method"] == "depth"``.
     """
     m = np.asarray(mask).astype(bool)
     pred = np.asarray(prediction, dtype=np.float64)
@@ -100,13 +98,12 @@ def relief_mesh(
 class DepthObjectReconstructor:
     """:class:`~easyhoi.perception.base.ObjectReconstructor` from a monocular depth model.
 
-    Parameters
-    ----------
-    model_dir : local folder with a transformers depth-estimation checkpoint and its image
-        processor (``config.json``, weights, ``preprocessor_config.json``).
-    output : "disparity" (default: DPT, Depth Anything) or "depth" (metric models).
-    relief, depth_scale, max_faces : see :func:`relief_mesh`.
-    device : torch device string.
+    Args:
+        model_dir: local folder with a transformers depth-estimation checkpoint and its image
+            processor (``config.json``, weights, ``preprocessor_config.json``).
+        output: "disparity" (default: DPT, Depth Anything) or "depth" (metric models).
+        relief, depth_scale, max_faces: see :func:`relief_mesh`.
+        device: torch device string.
     """
 
     def __init__(

@@ -37,14 +37,13 @@ TO_CAMERA = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 class ShapEObjectReconstructor:
     """:class:`~easyhoi.perception.base.ObjectReconstructor` backed by Shap-E image-to-3D.
 
-    Parameters
-    ----------
-    model_dir : local folder of a diffusers ``ShapEImg2ImgPipeline`` (``model_index.json``).
-    steps : diffusion steps (64 in Shap-E's examples).
-    guidance_scale : classifier-free guidance (3.0 in Shap-E's examples).
-    grid : signed-distance lattice size per axis (>= 16).
-    seed : seed of the diffusion noise (same photo + seed -> same mesh).
-    device : torch device string.
+    Args:
+        model_dir: local folder of a diffusers ``ShapEImg2ImgPipeline`` (``model_index.json``).
+        steps: diffusion steps (64 in Shap-E's examples).
+        guidance_scale: classifier-free guidance (3.0 in Shap-E's examples).
+        grid: signed-distance lattice size per axis (>= 16).
+        seed: seed of the diffusion noise (same photo + seed -> same mesh).
+        device: torch device string.
     """
 
     def __init__(

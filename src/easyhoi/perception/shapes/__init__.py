@@ -107,22 +107,20 @@ def fit_shape(
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Fit every family to the amodal ``mask`` and keep the best (module docs).
 
-    Parameters
-    ----------
-    mask : (H, W) bool amodal object mask.
-    image : (H, W, 3) uint8 hand-free photo (edge evidence), optional.
-    visible : (H, W) bool visible object mask, optional (amodal-only pixels count half).
-    occluder : (H, W) bool hand mask, optional (unknown pixels outside ``mask``).
-    cues : :class:`HandCues`, optional (thickness at the grip).
-    families : the families to try.
-    front : (H, W) float front surface from a monocular depth model (larger = farther, any
-        scale and shift), optional: adds ``FRONT_WEIGHT x relief agreement`` to each score.
+    Args:
+        mask: (H, W) bool amodal object mask.
+        image: (H, W, 3) uint8 hand-free photo (edge evidence), optional.
+        visible: (H, W) bool visible object mask, optional (amodal-only pixels count half).
+        occluder: (H, W) bool hand mask, optional (unknown pixels outside ``mask``).
+        cues: :class:`HandCues`, optional (thickness at the grip).
+        families: the families to try.
+        front: (H, W) float front surface from a monocular depth model (larger = farther, any scale
+            and shift), optional: adds ``FRONT_WEIGHT x relief agreement`` to each score.
 
-    Returns
-    -------
-    verts : (V, 3) (u, v, z) source pixels (z away from the camera), faces : (F, 3),
-    info : dict with ``shape`` (the winner), ``scores`` (family -> score, IoU, reasons) and
-    ``depth_cue_px``.
+    Returns:
+        verts : (V, 3) (u, v, z) source pixels (z away from the camera), faces : (F, 3), info : dict
+        with ``shape`` (the winner), ``scores`` (family -> score, IoU, reasons) and
+        ``depth_cue_px``.
     """
     wf: WorkFrame = work_frame(mask, visible, occluder, image)
     width = 2 * float(signed_distance_2d(wf.mask).max())

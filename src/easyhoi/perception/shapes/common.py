@@ -34,14 +34,13 @@ COMPLETION_WEIGHT = 0.5
 class WorkFrame:
     """The amodal mask and its evidence in working pixels.
 
-    Attributes
-    ----------
-    mask : (h, w) bool amodal mask.
-    visible : (h, w) bool visible object pixels (``mask`` itself when unknown).
-    weight : (h, w) float per-pixel weight of :func:`fit_iou`.
-    gray : (h, w) float grey image in [0, 1] or None (edge evidence).
-    scale : source pixels per working pixel.
-    offset : (2,) source pixel coordinates (u, v) of working pixel coordinate (0, 0).
+    Attributes:
+        mask: (h, w) bool amodal mask.
+        visible: (h, w) bool visible object pixels (``mask`` itself when unknown).
+        weight: (h, w) float per-pixel weight of :func:`fit_iou`.
+        gray: (h, w) float grey image in [0, 1] or None (edge evidence).
+        scale: source pixels per working pixel.
+        offset: (2,) source pixel coordinates (u, v) of working pixel coordinate (0, 0).
     """
 
     mask: np.ndarray
@@ -198,15 +197,14 @@ def view_chord(verts: np.ndarray, faces: np.ndarray, u: float, v: float) -> floa
 class Hypothesis:
     """One fitted shape.
 
-    Attributes
-    ----------
-    name : family name ("revolution", "slab", "cuboid", "superquadric", "tube", "inflation").
-    verts : (V, 3) float (u, v, z) working pixels; faces : (F, 3) int, closed, outward.
-    iou : weighted silhouette IoU (:func:`fit_iou`).
-    score : selection score (set by the selector).
-    rigid_depth : True when the family's depth follows from its outline (round
-        cross-sections); False when the depth is a free parameter set from the cues.
-    info : family parameters and evidence (JSON-serialisable).
+    Attributes:
+        name: family name ("revolution", "slab", "cuboid", "superquadric", "tube", "inflation").
+        verts: (V, 3) float (u, v, z) working pixels; faces : (F, 3) int, closed, outward.
+        iou: weighted silhouette IoU (:func:`fit_iou`).
+        score: selection score (set by the selector).
+        rigid_depth: True when the family's depth follows from its outline (round cross-sections);
+            False when the depth is a free parameter set from the cues.
+        info: family parameters and evidence (JSON-serialisable).
     """
 
     name: str

@@ -40,14 +40,13 @@ PAD_M = 0.009
 class HandCues:
     """Cues from the hand (module docs). Lengths in metres, positions in source pixels.
 
-    Attributes
-    ----------
-    px_per_m : image scale at the hand (pixels per metre).
-    grip_px : (2,) where the thickness was measured (u, v), or None.
-    depth_m : object thickness along the view where gripped, or None.
-    confidence : trust in ``depth_m``, in [0, 1] (0 without it).
-    grip_depth_m : camera z of the grip (mid-thickness) relative to the keypoints' mean z.
-    front, behind : keypoints (indices) found in front of / behind the object.
+    Attributes:
+        px_per_m: image scale at the hand (pixels per metre).
+        grip_px: (2,) where the thickness was measured (u, v), or None.
+        depth_m: object thickness along the view where gripped, or None.
+        confidence: trust in ``depth_m``, in [0, 1] (0 without it).
+        grip_depth_m: camera z of the grip (mid-thickness) relative to the keypoints' mean z.
+        front, behind: keypoints (indices) found in front of / behind the object.
     """
 
     px_per_m: float

@@ -61,18 +61,16 @@ def implicit_slab_mesh(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Closed surface ``{ (u, v, z) : h2(u, v) = (z - mid(u, v))^2 }`` by marching cubes.
 
-    Parameters
-    ----------
-    mask : (H, W) bool, the silhouette (sets the grid's extent).
-    h2 : (H, W) float squared half-thickness (negative outside the mask), pixels^2.
-    mid : (H, W) float mid-surface depth in pixels (z away from the camera), or None for 0.
-    max_faces : the grid is coarsened until the mesh has at most this many faces.
-    resolution : grid cells across the mask's larger side at the first attempt. The depth
-        step is at most a sixth of the largest thickness, so thin slabs keep their faces.
+    Args:
+        mask: (H, W) bool, the silhouette (sets the grid's extent).
+        h2: (H, W) float squared half-thickness (negative outside the mask), pixels^2.
+        mid: (H, W) float mid-surface depth in pixels (z away from the camera), or None for 0.
+        max_faces: the grid is coarsened until the mesh has at most this many faces.
+        resolution: grid cells across the mask's larger side at the first attempt. The depth step
+            is at most a sixth of the largest thickness, so thin slabs keep their faces.
 
-    Returns
-    -------
-    verts : (V, 3) float (u, v, z) pixel units, faces : (F, 3) int.
+    Returns:
+        verts: (V, 3) float (u, v, z) pixel units, faces : (F, 3) int.
     """
     from skimage.measure import marching_cubes
 

@@ -65,13 +65,11 @@ def profile(mask: np.ndarray, c: np.ndarray, a: np.ndarray, n_samples: int):
 def revolution_mesh(c, a, s, r, n_segments: int = 48) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and faces of the profile ``r(s)`` revolved about the axis through ``c``.
 
-    Parameters
-    ----------
-    c : (2,) axis point (u, v). a : (2,) unit axis direction. s, r : (K,) profile samples.
+    Args:
+        c: (2,) axis point (u, v). a : (2,) unit axis direction. s, r : (K,) profile samples.
 
-    Returns
-    -------
-    verts : (K * n_segments + 2, 3) float, faces : (2 * n_segments * K, 3) int, outward.
+    Returns:
+        verts: (K * n_segments + 2, 3) float, faces : (2 * n_segments * K, 3) int, outward.
     """
     a = np.asarray(a, dtype=np.float64)
     n = np.array([-a[1], a[0]])
