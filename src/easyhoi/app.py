@@ -78,36 +78,26 @@ def build_app(
 ):
     """The demo page as a ``gradio.Blocks`` (not started; see :func:`launch`).
 
-    Parameters
-    ----------
-    reconstruct_fn : callable, optional
-        The reconstruction (default :func:`easyhoi.pipeline.reconstruct_photo`); see the module
-        docstring for the contract.
-    preset : str
-        Preset selected when the page opens.
-    max_upload_mb : float
-        Upload size limit (checked again by :func:`handle_request`).
-    work_dir : path, optional
-        Folder for the request folders (default: a new temporary folder). Stored as
-        ``app.easyhoi_work_dir``.
-    examples : list of paths, optional
-        Example photos offered under the upload (default: :func:`synthetic_examples`).
-    keep_runs : int
-        Request folders kept on disk.
-    segment_fn : callable, optional
-        The segmentation behind "Show mask" (default:
-        :func:`easyhoi.app_prompts.segment_for_preview`; see
-        :func:`~easyhoi.app_prompts.mask_preview`).
+    Args:
+        reconstruct_fn (callable, optional): The reconstruction (default
+            :func:`easyhoi.pipeline.reconstruct_photo`); see the module docstring for the contract.
+        preset (str): Preset selected when the page opens.
+        max_upload_mb (float): Upload size limit (checked again by :func:`handle_request`).
+        work_dir (path, optional): Folder for the request folders (default: a new temporary folder).
+            Stored as ``app.easyhoi_work_dir``.
+        examples (list of paths, optional): Example photos offered under the upload (default:
+            :func:`synthetic_examples`).
+        keep_runs (int): Request folders kept on disk.
+        segment_fn (callable, optional): The segmentation behind "Show mask" (default:
+            :func:`easyhoi.app_prompts.segment_for_preview`; see
+            :func:`~easyhoi.app_prompts.mask_preview`).
 
-    Raises
-    ------
-    MissingDependencyError
-        gradio is not installed (``pip install 'easyhoi[demo]'``).
+    Raises:
+        MissingDependencyError: gradio is not installed (``pip install 'easyhoi[demo]'``).
 
-    Notes
-    -----
-    Sets ``GRADIO_ANALYTICS_ENABLED=False`` and (unless set) ``HF_HUB_OFFLINE=1`` and
-    ``HF_HUB_DISABLE_TELEMETRY=1`` in this process: the demo contacts no other machine.
+    Note:
+        Sets ``GRADIO_ANALYTICS_ENABLED=False`` and (unless set) ``HF_HUB_OFFLINE=1`` and
+        ``HF_HUB_DISABLE_TELEMETRY=1`` in this process: the demo contacts no other machine.
     """
     gr = _require_gradio()
     from easyhoi.config import PRESETS

@@ -267,35 +267,23 @@ def handle_request(
 ) -> DemoResult:
     """Run one demo request: validate the upload, reconstruct, collect the outputs.
 
-    Parameters
-    ----------
-    image_path : path or None
-        The uploaded file (None: nothing uploaded).
-    preset : str
-        Configuration preset (:func:`easyhoi.config.get_preset`).
-    seed : int
-        Random seed (0 <= seed < 2**32); same photo + preset + seed -> same result.
-    work_root : path
-        Folder under which this request gets its own ``run-*`` folder.
-    reconstruct_fn : callable
-        ``(image_path, folder, config, *, seed, progress, say) -> object with .files``;
-        default :func:`easyhoi.pipeline.reconstruct_photo`.
-    max_upload_mb : float
-        Uploads larger than this are refused before decoding.
-    keep_runs : int
-        How many request folders to keep under ``work_root``.
-    progress : callable
-        ``(description, fraction or None)``, fed from the pipeline's callbacks.
-    display_name : str
-        Name of the upload as the user knows it (default: the file's name).
-    prompts : Prompts or None
-        Points clicked on the photo (pixels of the upload); checked against its size.
+    Args:
+        image_path (path or None): The uploaded file (None: nothing uploaded).
+        preset (str): Configuration preset (:func:`easyhoi.config.get_preset`).
+        seed (int): Random seed (0 <= seed < 2**32); same photo + preset + seed -> same result.
+        work_root (path): Folder under which this request gets its own ``run-*`` folder.
+        reconstruct_fn (callable): ``(image_path, folder, config, *, seed, progress, say) -> object
+            with .files``; default :func:`easyhoi.pipeline.reconstruct_photo`.
+        max_upload_mb (float): Uploads larger than this are refused before decoding.
+        keep_runs (int): How many request folders to keep under ``work_root``.
+        progress (callable): ``(description, fraction or None)``, fed from the pipeline's callbacks.
+        display_name (str): Name of the upload as the user knows it (default: the file's name).
+        prompts (Prompts or None): Points clicked on the photo (pixels of the upload); checked
+            against its size.
 
-    Returns
-    -------
-    DemoResult
-        ``ok`` False with a readable ``error`` for bad input or a failed reconstruction; this
-        function does not raise for those.
+    Returns:
+        DemoResult: ``ok`` False with a readable ``error`` for bad input or a failed reconstruction;
+            this function does not raise for those.
     """
     from easyhoi.config import PRESETS, get_preset
     from easyhoi.io.image import load_image

@@ -133,24 +133,17 @@ def discover_images(
     are an image signature (``scan_0001``, ``photo.image``). Hidden files and folders (leading
     ``.``) and the manifests are ignored.
 
-    Parameters
-    ----------
-    folder : str or Path
-        Folder to scan.
-    recursive : bool
-        Also scan subfolders (symbolic links to folders are not followed).
-    exclude : iterable of path-like
-        Folders to leave out (for example the batch output folder when it lies inside).
+    Args:
+        folder (str or Path): Folder to scan.
+        recursive (bool): Also scan subfolders (symbolic links to folders are not followed).
+        exclude (iterable of path-like): Folders to leave out (for example the batch output folder
+            when it lies inside).
 
-    Returns
-    -------
-    list of Path
-        Sorted by relative POSIX path (deterministic across runs and file systems).
+    Returns:
+        list of Path: Sorted by relative POSIX path (deterministic across runs and file systems).
 
-    Raises
-    ------
-    InvalidInputError
-        ``folder`` does not exist or is not a folder.
+    Raises:
+        InvalidInputError: ``folder`` does not exist or is not a folder.
     """
     root = Path(folder)
     if not root.exists():
@@ -225,20 +218,15 @@ def plan_tasks(
 ) -> list[Task]:
     """One :class:`~easyhoi.distributed.Task` per photo, sorted by key.
 
-    Parameters
-    ----------
-    images : sequence of path-like
-        Photo files (duplicates are dropped).
-    out_dir : path-like
-        Batch output folder.
-    seed : int
-        Batch seed; each photo gets :func:`item_seed` ``(seed, key)``.
-    root : path-like or None
-        Folder the keys are relative to (None: the deepest folder containing every photo).
+    Args:
+        images (sequence of path-like): Photo files (duplicates are dropped).
+        out_dir (path-like): Batch output folder.
+        seed (int): Batch seed; each photo gets :func:`item_seed` ``(seed, key)``.
+        root (path-like or None): Folder the keys are relative to (None: the deepest folder
+            containing every photo).
 
-    Returns
-    -------
-    list of Task
+    Returns:
+        list of Task
     """
     paths = []
     seen = set()
@@ -454,21 +442,14 @@ def write_manifest_csv(path: str | Path, records: Iterable[ItemRecord]) -> Path:
 class BatchSummary:
     """Outcome of :func:`run_batch`.
 
-    Attributes
-    ----------
-    records : tuple of ItemRecord
-        One per photo of this batch, sorted by path (photos not reached when interrupted are
-        absent).
-    seconds : float
-        Wall time of the batch.
-    manifest : Path
-        ``manifest.jsonl``.
-    manifest_csv : Path
-        ``manifest.csv``.
-    engine : str
-        Engine used.
-    workers : int
-        Worker count used.
+    Attributes:
+        records (tuple of ItemRecord): One per photo of this batch, sorted by path (photos not
+            reached when interrupted are absent).
+        seconds (float): Wall time of the batch.
+        manifest (Path): ``manifest.jsonl``.
+        manifest_csv (Path): ``manifest.csv``.
+        engine (str): Engine used.
+        workers (int): Worker count used.
     """
 
     records: tuple[ItemRecord, ...]
@@ -546,50 +527,35 @@ def run_batch(
 ) -> BatchSummary:
     """Run ``worker`` on every photo; one failing photo never stops the batch.
 
-    Parameters
-    ----------
-    images : sequence of path-like
-        Photo files (see :func:`discover_images`).
-    out_dir : path-like
-        Batch output folder (created): one folder per photo plus the manifests.
-    worker : callable
-        Picklable ``worker(task) -> dict | None`` that writes into ``task.output``; its
-        exceptions are recorded, not raised (see :mod:`easyhoi.distributed`).
-    engine : {"local", "ray", "inline"}
-        Executor (see :func:`easyhoi.distributed.execute`).
-    workers : int
-        Parallel workers.
-    resume : bool
-        Keep the existing manifest and skip photos whose latest line says ok and whose output
-        folder exists (recorded as ``skipped``).
-    seed : int
-        Batch seed; each photo's seed is :func:`item_seed` ``(seed, path)``.
-    ray_address : str or None
-        Existing Ray cluster for ``engine="ray"`` (None: a local one).
-    progress : callable or None
-        ``progress(record, done, total)`` after each photo (skipped ones included), in the
-        calling process.
-    root : path-like or None
-        Folder the photo names are relative to (None: the deepest common folder).
-    threads : int or None
-        Torch threads per worker (None: :data:`easyhoi.distributed.DEFAULT_THREADS`, one).
-    wait : bool
-        When another run holds ``out_dir`` (see :mod:`easyhoi.batch_lock`), wait for it
-        instead of refusing.
+    Args:
+        images (sequence of path-like): Photo files (see :func:`discover_images`).
+        out_dir (path-like): Batch output folder (created): one folder per photo plus the manifests.
+        worker (callable): Picklable ``worker(task) -> dict | None`` that writes into
+            ``task.output``; its exceptions are recorded, not raised (see
+            :mod:`easyhoi.distributed`).
+        engine ({"local", "ray", "inline"}): Executor (see :func:`easyhoi.distributed.execute`).
+        workers (int): Parallel workers.
+        resume (bool): Keep the existing manifest and skip photos whose latest line says ok and
+            whose output folder exists (recorded as ``skipped``).
+        seed (int): Batch seed; each photo's seed is :func:`item_seed` ``(seed, path)``.
+        ray_address (str or None): Existing Ray cluster for ``engine="ray"`` (None: a local one).
+        progress (callable or None): ``progress(record, done, total)`` after each photo (skipped
+            ones included), in the calling process.
+        root (path-like or None): Folder the photo names are relative to (None: the deepest common
+            folder).
+        threads (int or None): Torch threads per worker (None:
+            :data:`easyhoi.distributed.DEFAULT_THREADS`, one).
+        wait (bool): When another run holds ``out_dir`` (see :mod:`easyhoi.batch_lock`), wait for it
+            instead of refusing.
 
-    Returns
-    -------
-    BatchSummary
+    Returns:
+        BatchSummary
 
-    Raises
-    ------
-    InvalidInputError
-        Bad engine/worker count, unpicklable worker, ``out_dir`` is a file, or an output path
-        passes through a symbolic link inside ``out_dir``.
-    OutputBusyError
-        Another run holds ``out_dir`` (and ``wait`` is off).
-    MissingDependencyError
-        ``engine="ray"`` without Ray.
+    Raises:
+        InvalidInputError: Bad engine/worker count, unpicklable worker, ``out_dir`` is a file, or an
+            output path passes through a symbolic link inside ``out_dir``.
+        OutputBusyError: Another run holds ``out_dir`` (and ``wait`` is off).
+        MissingDependencyError: ``engine="ray"`` without Ray.
     """
     t0 = time.perf_counter()
     out = Path(out_dir)
@@ -668,10 +634,9 @@ def summarize_photo(task: Task) -> dict:
     pixels drawn with ``task.seed`` (so a wrong or order-dependent seed shows in the output).
     Useful to check a folder before a long run, and as the test and benchmark worker.
 
-    Raises
-    ------
-    InvalidInputError
-        Missing, empty, corrupt or too small photos (from :func:`easyhoi.io.image.load_image`).
+    Raises:
+        InvalidInputError: Missing, empty, corrupt or too small photos (from
+            :func:`easyhoi.io.image.load_image`).
     """
     import numpy as np
 

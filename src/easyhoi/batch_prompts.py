@@ -148,22 +148,18 @@ def load_prompts_file(
 ) -> dict[str, Prompts]:
     """Prompts per batch photo from a sidecar file, everything checked.
 
-    Parameters
-    ----------
-    path : the JSON or CSV sidecar.
-    photos : batch photo name (path inside the batch folder, POSIX) -> photo file.
-    check_sizes : check every prompt against its photo's size (:func:`photo_size`).
+    Args:
+        path: the JSON or CSV sidecar.
+        photos: batch photo name (path inside the batch folder, POSIX) -> photo file.
+        check_sizes: check every prompt against its photo's size (:func:`photo_size`).
 
-    Returns
-    -------
-    dict
-        batch photo name -> :class:`Prompts` (photos without prompts are absent).
+    Returns:
+        dict: batch photo name -> :class:`Prompts` (photos without prompts are absent).
 
-    Raises
-    ------
-    InvalidInputError
-        Missing or unreadable file, unknown extension, bad syntax or values, unknown or
-        ambiguous photo names, the same photo named twice, prompts outside their photo.
+    Raises:
+        InvalidInputError: Missing or unreadable file, unknown extension, bad syntax or values,
+            unknown or ambiguous photo names, the same photo named twice, prompts outside their
+            photo.
     """
     p = Path(path)
     try:

@@ -325,6 +325,7 @@ def _config_from_args(args):
     }  # fmt: skip
     for flag, role, name in (("sam_dir", "amodal", "sam"), ("depth_dir", "object", "depth"),
                              ("diffusion_dir", "inpainter", "diffusion"),
+                             ("shape_dir", "object", "shap-e"),
                              ("detector_dir", "segmenter", "grounded-sam")):  # fmt: skip
         if getattr(args, flag, None):
             perception[flag] = getattr(args, flag)
@@ -591,6 +592,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument(flag, default=None, help=f"{role} backend (see `easyhoi doctor`)")
     p.add_argument("--sam-dir", help="local SAM model folder (uses the 'sam' amodal backend)")
     p.add_argument("--depth-dir", help="local depth model folder (uses the 'depth' object backend)")
+    p.add_argument("--shape-dir", help="local Shap-E image-to-3D pipeline folder (uses the "
+                   "'shap-e' object backend)")  # fmt: skip
     p.add_argument("--diffusion-dir", help="local diffusers inpainting pipeline folder")
     p.add_argument("--detector-dir", help="local OWLv2 or Grounding DINO folder (uses the "
                    "'grounded-sam' segmenter with --sam-dir)")  # fmt: skip

@@ -395,6 +395,8 @@ class PerceptionConfig:
     """Local folder of a depth-estimation model (transformers) for the "depth" object backend."""
     diffusion_dir: str | None = None
     """Local folder of a diffusers inpainting pipeline for the "diffusion" inpainter."""
+    shape_dir: str | None = None
+    """Local folder of a diffusers Shap-E image-to-3D pipeline for the "shap-e" object backend."""
 
 
 _HAND_MODELS = ("open", "mano")

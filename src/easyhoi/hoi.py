@@ -28,10 +28,8 @@ HAND_MODELS = ("open", "mano")
 def as_bool_mask(mask: Any, name: str) -> np.ndarray:
     """(H, W) bool copy of a mask given as bool, or numbers in {0, 1} or {0, 255}.
 
-    Raises
-    ------
-    InvalidInputError
-        Not 2D, or values other than 0/1 (or 0/255 for uint8 images).
+    Raises:
+        InvalidInputError: Not 2D, or values other than 0/1 (or 0/255 for uint8 images).
     """
     try:
         m = np.asarray(mask)
@@ -92,30 +90,22 @@ def _check_json(meta: Any, name: str) -> dict:
 class HOIInput:
     """Everything the optimizer needs, validated on construction.
 
-    Attributes
-    ----------
-    image : (H, W, 3) uint8
-        The RGB photo.
-    hand_mask : (H, W) bool
-        Visible hand mask M_h.
-    object_mask : (H, W) bool
-        Visible held-object mask M_o.
-    amodal_mask : (H, W) bool
-        Complete (amodal) object mask M^_o.
-    object_mesh : trimesh.Trimesh
-        Object mesh in its own canonical frame, arbitrary scale (not modified).
-    hand_params : HandParams
-        Initial hand (batch 1) expressed in ``hand_camera``'s frame (metres).
-    hand_camera : Camera
-        The full-image camera the hand estimate lives in (same size as the image).
-    hand_model : {"open", "mano"}
-        Which hand model ``hand_params`` belong to.
-    inpainted_image : (H, W, 3) uint8 or None
-        The photo with the hand removed, if available.
-    complete_hand_mask : (H, W) bool or None
-        M^_h, the complete hand silhouette rendered from the hand estimate, if available.
-    meta : dict
-        JSON-serialisable provenance (file names, backends, ...).
+    Attributes:
+        image ((H, W, 3) uint8): The RGB photo.
+        hand_mask ((H, W) bool): Visible hand mask M_h.
+        object_mask ((H, W) bool): Visible held-object mask M_o.
+        amodal_mask ((H, W) bool): Complete (amodal) object mask M^_o.
+        object_mesh (trimesh.Trimesh): Object mesh in its own canonical frame, arbitrary scale (not
+            modified).
+        hand_params (HandParams): Initial hand (batch 1) expressed in ``hand_camera``'s frame
+            (metres).
+        hand_camera (Camera): The full-image camera the hand estimate lives in (same size as the
+            image).
+        hand_model ({"open", "mano"}): Which hand model ``hand_params`` belong to.
+        inpainted_image ((H, W, 3) uint8 or None): The photo with the hand removed, if available.
+        complete_hand_mask ((H, W) bool or None): M^_h, the complete hand silhouette rendered from
+            the hand estimate, if available.
+        meta (dict): JSON-serialisable provenance (file names, backends, ...).
 
     Arrays are stored as read-only copies; masks are converted to bool (0/1 or 0/255 allowed).
     """
@@ -198,26 +188,19 @@ class HOIInput:
 class StageResult:
     """Snapshot at the end of one optimizer stage.
 
-    Attributes
-    ----------
-    name : str
-        "initial", "camera", "contact" or "refine".
-    hand_params : HandParams or None
-        Hand parameters after the stage (metric object frame), None if the stage has no hand.
-    camera : Camera or None
-        Object camera after the stage (object frame, object units).
-    losses : list of dict
-        History: one dict per recorded iteration, e.g. ``{"iter": 0, "total": 0.8, "iou": 0.7}``.
-    seconds : float
-        Wall time of the stage.
-    iterations : int
-        Iterations run.
-    metric_scale : float or None
-        Metres per object unit after the stage, if known.
-    stop_reason : str
-        Why the stage ended ("stop_loss", "patience", "max_iters", "disabled", ...).
-    extra : dict
-        JSON-serialisable stage-specific values (e.g. ICP residuals).
+    Attributes:
+        name (str): "initial", "camera", "contact" or "refine".
+        hand_params (HandParams or None): Hand parameters after the stage (metric object frame),
+            None if the stage has no hand.
+        camera (Camera or None): Object camera after the stage (object frame, object units).
+        losses (list of dict): History: one dict per recorded iteration, e.g. ``{"iter": 0, "total":
+            0.8, "iou": 0.7}``.
+        seconds (float): Wall time of the stage.
+        iterations (int): Iterations run.
+        metric_scale (float or None): Metres per object unit after the stage, if known.
+        stop_reason (str): Why the stage ended ("stop_loss", "patience", "max_iters", "disabled",
+            ...).
+        extra (dict): JSON-serialisable stage-specific values (e.g. ICP residuals).
     """
 
     name: str
@@ -277,36 +260,24 @@ class StageResult:
 class HOIResult:
     """The reconstruction: hand and object in the object frame, the camera, and the history.
 
-    Attributes
-    ----------
-    hand_params : HandParams
-        Final hand (batch 1) in the metric object frame: ``hand_model(hand_params).vertices /
-        metric_scale`` are the hand vertices in object units.
-    camera : Camera
-        Object camera (world = object frame, object units), fitted to the photo.
-    hand_vertices : (V, 3) float64
-        Final hand vertices in object units.
-    hand_faces : (F, 3) int64
-        Hand triangles (closed mesh).
-    object_mesh : trimesh.Trimesh
-        The object, unchanged, in its own frame and units.
-    metric_scale : float
-        Metres per object unit (from the hand's known size).
-    hand_model : {"open", "mano"}
-    stages : tuple of StageResult
-        One snapshot per stage, in order.
-    timings : dict of str -> float
-        Seconds per named step.
-    seed : int
-    config : dict
-        The configuration used (:func:`easyhoi.config.to_dict`).
-    plausibility : dict
-        JSON-serialisable report (penetration depth, contact, ...).
-    meta : dict
-        JSON-serialisable provenance.
-    hand_change : dict
-        How far the optimizer moved the hand from the estimator's, per keypoint in cm and px
-        (:func:`easyhoi.optim.hand_change.hand_change`); empty when not computed.
+    Attributes:
+        hand_params (HandParams): Final hand (batch 1) in the metric object frame:
+            ``hand_model(hand_params).vertices / metric_scale`` are the hand vertices in object
+            units.
+        camera (Camera): Object camera (world = object frame, object units), fitted to the photo.
+        hand_vertices ((V, 3) float64): Final hand vertices in object units.
+        hand_faces ((F, 3) int64): Hand triangles (closed mesh).
+        object_mesh (trimesh.Trimesh): The object, unchanged, in its own frame and units.
+        metric_scale (float): Metres per object unit (from the hand's known size).
+        hand_model: {"open", "mano"}
+        stages (tuple of StageResult): One snapshot per stage, in order.
+        timings (dict of str -> float): Seconds per named step.
+        seed: int
+        config (dict): The configuration used (:func:`easyhoi.config.to_dict`).
+        plausibility (dict): JSON-serialisable report (penetration depth, contact, ...).
+        meta (dict): JSON-serialisable provenance.
+        hand_change (dict): How far the optimizer moved the hand from the estimator's, per keypoint
+            in cm and px (:func:`easyhoi.optim.hand_change.hand_change`); empty when not computed.
     """
 
     hand_params: HandParams

@@ -25,22 +25,18 @@ def load_mesh(path: str | Path, process: bool = False) -> trimesh.Trimesh:
 
     Scenes (GLB files with several nodes) are flattened into one mesh in world coordinates.
 
-    Parameters
-    ----------
-    path : str or Path
-        The file to read.
-    process : bool
-        Forwarded to trimesh: merge duplicate vertices and drop degenerate faces when True.
+    Args:
+        path (str or Path): The file to read.
+        process (bool): Forwarded to trimesh: merge duplicate vertices and drop degenerate faces
+            when True.
 
-    Returns
-    -------
-    trimesh.Trimesh
-        A validated mesh with (V, 3) float64 vertices and (F, 3) int64 faces, F > 0.
+    Returns:
+        trimesh.Trimesh: A validated mesh with (V, 3) float64 vertices and (F, 3) int64 faces, F >
+            0.
 
-    Raises
-    ------
-    InvalidInputError
-        The file is missing, has an unsupported suffix, cannot be parsed, or holds no valid mesh.
+    Raises:
+        InvalidInputError: The file is missing, has an unsupported suffix, cannot be parsed, or
+            holds no valid mesh.
     """
     p = Path(path)
     if not p.is_file():
@@ -89,14 +85,11 @@ def validate_mesh(
 ) -> None:
     """Raise unless ``mesh`` is a non-empty, finite triangle mesh with valid face indices.
 
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-        The mesh to check.
-    name : str
-        How the mesh is named in error messages.
-    require_watertight : bool
-        Also require a closed, consistently wound surface (``mesh.is_watertight``).
+    Args:
+        mesh (trimesh.Trimesh): The mesh to check.
+        name (str): How the mesh is named in error messages.
+        require_watertight (bool): Also require a closed, consistently wound surface
+            (``mesh.is_watertight``).
     """
     if not isinstance(mesh, trimesh.Trimesh):
         raise InvalidInputError(f"{name} must be a trimesh.Trimesh, got {type(mesh).__name__}")
@@ -112,12 +105,9 @@ def validate_mesh(
 class MeshNormalization:
     """The similarity ``x_norm = (x - center) * scale`` applied by :func:`normalize_mesh`.
 
-    Attributes
-    ----------
-    center : (3,) float64 ndarray
-        Centre of the axis-aligned bounding box of the original mesh.
-    scale : float
-        Factor that maps the original bounding radius to the target radius.
+    Attributes:
+        center ((3,) float64 ndarray): Centre of the axis-aligned bounding box of the original mesh.
+        scale (float): Factor that maps the original bounding radius to the target radius.
     """
 
     center: np.ndarray
@@ -147,19 +137,14 @@ def normalize_mesh(
     The bounding radius is the largest distance of a vertex from the box centre, so afterwards
     every vertex lies in the ball of radius ``radius`` around the origin and one touches it.
 
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-        The mesh; it is not modified.
-    radius : float
-        Target bounding radius, > 0.
+    Args:
+        mesh (trimesh.Trimesh): The mesh; it is not modified.
+        radius (float): Target bounding radius, > 0.
 
-    Returns
-    -------
-    normalized : trimesh.Trimesh
-        A new mesh with the same faces.
-    transform : MeshNormalization
-        ``transform.apply(mesh.vertices) == normalized.vertices``; ``invert`` undoes it.
+    Returns:
+        normalized (trimesh.Trimesh): A new mesh with the same faces.
+        transform (MeshNormalization): ``transform.apply(mesh.vertices) == normalized.vertices``;
+            ``invert`` undoes it.
     """
     validate_mesh(mesh)
     if not (np.isfinite(radius) and radius > 0):

@@ -48,23 +48,18 @@ _CARVE_VOTES = 1
 class WatertightReport:
     """What :func:`make_watertight` did.
 
-    Attributes
-    ----------
-    method : str
-        ``"none"`` (already watertight), ``"meshfix"``, ``"fusion-carve"`` or ``"fusion-poisson"``.
-    watertight_before, watertight_after : bool
-        ``trimesh.Trimesh.is_watertight`` of the input (after merging duplicate vertices) and
-        of the output.
-    volume_before, volume_after : float
-        Signed volumes (mesh units cubed); the input's is meaningless when it is not closed.
-    hull_volume : float
-        Volume of the input's convex hull, an upper bound for a sane output volume.
-    faces_before, faces_after : int
-        Face counts.
-    seconds : float
-        Wall time of the call.
-    notes : str
-        Why a route was chosen or abandoned.
+    Attributes:
+        method (str): ``"none"`` (already watertight), ``"meshfix"``, ``"fusion-carve"`` or
+            ``"fusion-poisson"``.
+        watertight_before, watertight_after (bool): ``trimesh.Trimesh.is_watertight`` of the input
+            (after merging duplicate vertices) and of the output.
+        volume_before, volume_after (float): Signed volumes (mesh units cubed); the input's is
+            meaningless when it is not closed.
+        hull_volume (float): Volume of the input's convex hull, an upper bound for a sane output
+            volume.
+        faces_before, faces_after (int): Face counts.
+        seconds (float): Wall time of the call.
+        notes (str): Why a route was chosen or abandoned.
     """
 
     method: str
@@ -95,13 +90,12 @@ def fibonacci_directions(n: int) -> np.ndarray:
 class DepthView:
     """One orthographic depth map; the camera sits at ``center + 2 r d`` looking along ``-d``.
 
-    Attributes
-    ----------
-    direction, u, v : (3,) orthonormal frame (``d``, image x axis, image y axis).
-    depth : (S, S) distance from the image plane to the first hit along ``-d``; inf on a miss,
-    -inf where the first hit is back-facing (seen through a hole).
-    points : (K, 3) front-facing hit positions; normals : (K, 3) their face normals (facing the
-    camera); face_ids : (K,) their faces.
+    Attributes:
+        direction, u, v: (3,) orthonormal frame (``d``, image x axis, image y axis).
+        depth: (S, S) distance from the image plane to the first hit along ``-d``; inf on a miss,
+            -inf where the first hit is back-facing (seen through a hole).
+        points: (K, 3) front-facing hit positions; normals : (K, 3) their face normals (facing the
+            camera); face_ids : (K,) their faces.
     """
 
     direction: np.ndarray
@@ -152,9 +146,8 @@ def render_depth_views(
 def fuse_point_cloud(views: list[DepthView], voxel: float) -> tuple[np.ndarray, np.ndarray]:
     """Merge the views' hits into one cloud, averaging points and normals per ``voxel`` cell.
 
-    Returns
-    -------
-    points : (P, 3), normals : (P, 3) unit
+    Returns:
+        points: (P, 3), normals : (P, 3) unit
     """
     pts = np.concatenate([v.points for v in views])
     nrm = np.concatenate([v.normals for v in views])
@@ -277,37 +270,27 @@ def make_watertight(
 ) -> tuple[trimesh.Trimesh, WatertightReport]:
     """Return a closed, outward-oriented version of ``mesh`` and a report of what was done.
 
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-        Any triangle mesh; not modified.
-    method : str
-        ``"auto"``, ``"meshfix"`` or ``"fusion"`` (see the module docstring).
-    surface : str
-        Fusion surface: ``"carve"`` or ``"poisson"`` (needs pymeshlab).
-    num_views : int
-        Depth maps rendered for fusion (the reference uses 10; 16 carve concavities better).
-    image_size : int
-        Pixels per side of each depth map.
-    resolution : int
-        The carving grid holds about ``resolution ** 3`` cubic voxels over the bounding box.
-    poisson_depth : int
-        Octree depth of the Poisson reconstruction (reference: 9).
-    density_quantile : float
-        Poisson vertices whose density is below this quantile are removed (reference: 0.05).
-    voxel_fraction : float
-        Poisson input down-sampling voxel as a fraction of the bounding diameter.
+    Args:
+        mesh (trimesh.Trimesh): Any triangle mesh; not modified.
+        method (str): ``"auto"``, ``"meshfix"`` or ``"fusion"`` (see the module docstring).
+        surface (str): Fusion surface: ``"carve"`` or ``"poisson"`` (needs pymeshlab).
+        num_views (int): Depth maps rendered for fusion (the reference uses 10; 16 carve concavities
+            better).
+        image_size (int): Pixels per side of each depth map.
+        resolution (int): The carving grid holds about ``resolution ** 3`` cubic voxels over the
+            bounding box.
+        poisson_depth (int): Octree depth of the Poisson reconstruction (reference: 9).
+        density_quantile (float): Poisson vertices whose density is below this quantile are removed
+            (reference: 0.05).
+        voxel_fraction (float): Poisson input down-sampling voxel as a fraction of the bounding
+            diameter.
 
-    Returns
-    -------
-    mesh : trimesh.Trimesh
-        Watertight (``is_watertight``) with positive volume.
-    report : WatertightReport
+    Returns:
+        mesh (trimesh.Trimesh): Watertight (``is_watertight``) with positive volume.
+        report: WatertightReport
 
-    Raises
-    ------
-    BackendError
-        No route produced a watertight mesh.
+    Raises:
+        BackendError: No route produced a watertight mesh.
     """
     start = time.perf_counter()
     validate_mesh(mesh)

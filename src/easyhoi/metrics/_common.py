@@ -36,26 +36,19 @@ def to_numpy(x, name: str) -> np.ndarray:
 def as_mesh(mesh, name: str, watertight: bool = False) -> trimesh.Trimesh:
     """Validate and coerce a mesh.
 
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh or tuple
-        A mesh, or ``(vertices (V, 3) float, faces (F, 3) int)`` in metres.
-    name : str
-        Name used in error messages (for example ``"hand_mesh"``).
-    watertight : bool
-        When True, raise unless the mesh is closed and consistently oriented
-        (required by inside/outside tests).
+    Args:
+        mesh (trimesh.Trimesh or tuple): A mesh, or ``(vertices (V, 3) float, faces (F, 3) int)`` in
+            metres.
+        name (str): Name used in error messages (for example ``"hand_mesh"``).
+        watertight (bool): When True, raise unless the mesh is closed and consistently oriented
+            (required by inside/outside tests).
 
-    Returns
-    -------
-    trimesh.Trimesh
-        A mesh built with ``process=False`` (vertex order preserved).
+    Returns:
+        trimesh.Trimesh: A mesh built with ``process=False`` (vertex order preserved).
 
-    Raises
-    ------
-    InvalidInputError
-        Empty or degenerate meshes, non-finite vertices, bad face indices, or (when
-        ``watertight``) a mesh that is not watertight.
+    Raises:
+        InvalidInputError: Empty or degenerate meshes, non-finite vertices, bad face indices, or
+            (when ``watertight``) a mesh that is not watertight.
     """
     if isinstance(mesh, trimesh.Trimesh):
         vertices = np.asarray(mesh.vertices, dtype=np.float64)
@@ -96,17 +89,13 @@ def _open_edge_count(mesh: trimesh.Trimesh) -> int:
 def winding_number(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     """Generalised winding number of ``mesh`` at ``points``.
 
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-        Triangle mesh (outward normals give +1 inside).
-    points : (N, 3) float
-        Query points in the mesh's units.
+    Args:
+        mesh (trimesh.Trimesh): Triangle mesh (outward normals give +1 inside).
+        points ((N, 3) float): Query points in the mesh's units.
 
-    Returns
-    -------
-    (N,) float
-        About 1 inside a closed mesh, 0 outside (fast winding numbers, Barill et al. 2018).
+    Returns:
+        (N,) float: About 1 inside a closed mesh, 0 outside (fast winding numbers, Barill et al.
+            2018).
     """
     import point_cloud_utils as pcu
 

@@ -93,19 +93,17 @@ def fit_box(
 ) -> np.ndarray:
     """Translation placing the object so its projected box matches ``box``.
 
-    Parameters
-    ----------
-    verts : (V, 3) object vertices (object units).
-    R : (3, 3) camera rotation.
-    focal : float, pixels (fx = fy).
-    principal : (cx, cy) pixels.
-    box : (4,) target box ``u0, v0, u1, v1`` in pixels.
-    center : (3,) object centre.
+    Args:
+        verts: (V, 3) object vertices (object units).
+        R: (3, 3) camera rotation.
+        focal: float, pixels (fx = fy).
+        principal: (cx, cy) pixels.
+        box: (4,) target box ``u0, v0, u1, v1`` in pixels.
+        center: (3,) object centre.
 
-    Returns
-    -------
-    (3,) ``t`` with ``x_cam = R x + t``: same box centre and area after a few fixed-point
-    iterations (depth from the area ratio, lateral shift from the centre offset).
+    Returns:
+        (3,) ``t`` with ``x_cam = R x + t``: same box centre and area after a few fixed-point
+        iterations (depth from the area ratio, lateral shift from the centre offset).
     """
     X = (verts - center) @ R.T
     bw, bh = max(box[2] - box[0], 1.0), max(box[3] - box[1], 1.0)
@@ -237,24 +235,17 @@ def fit_camera(
 ) -> tuple[Camera, StageResult]:
     """Run stage 1 from ``cam0``.
 
-    Parameters
-    ----------
-    scene : Scene
-    cam0 : Camera
-        Initial object camera at the full image size (:func:`initial_camera`).
-    cfg : CameraStageConfig
-    optim_cfg : OptimConfig
-        For ``render_size`` and ``history_every``.
-    progress : callable or None
-        ``progress("camera", iteration, max_iters, terms)``.
+    Args:
+        scene: Scene
+        cam0 (Camera): Initial object camera at the full image size (:func:`initial_camera`).
+        cfg: CameraStageConfig
+        optim_cfg (OptimConfig): For ``render_size`` and ``history_every``.
+        progress (callable or None): ``progress("camera", iteration, max_iters, terms)``.
 
-    Returns
-    -------
-    camera : Camera
-        Fitted camera (full image size, detached).
-    result : StageResult
-        History (``iou``, ``sinkhorn``, ``total`` per recorded iteration), iterations, stop
-        reason, and ``extra`` with the final hard IoU at the last resolution.
+    Returns:
+        camera (Camera): Fitted camera (full image size, detached).
+        result (StageResult): History (``iou``, ``sinkhorn``, ``total`` per recorded iteration),
+            iterations, stop reason, and ``extra`` with the final hard IoU at the last resolution.
     """
     start = time.perf_counter()
     params = _CameraParams(cam0, scene.center, scene.extent, cfg.optimise_focal)

@@ -183,16 +183,14 @@ def scan_scale(
     candidates within ``tie_margin`` of the best score tie and the one nearest ``m0`` (smallest
     ``|log(m / m0)|``) wins.
 
-    Parameters
-    ----------
-    verts_cam : (V, 3) hand vertices in the object camera frame, metres.
-    camera : object camera (full image size).
-    tie_margin : float, score difference that counts as a tie (0: the best score).
-    band : float, width of the contact band (normalised object units; 0: closest vertex).
+    Args:
+        verts_cam: (V, 3) hand vertices in the object camera frame, metres.
+        camera: object camera (full image size).
+        tie_margin: float, score difference that counts as a tie (0: the best score).
+        band: float, width of the contact band (normalised object units; 0: closest vertex).
 
-    Returns
-    -------
-    (m, score) of the chosen candidate.
+    Returns:
+        (m, score) of the chosen candidate.
     """
     h, w = scene.render_size(0.5, render_size)
     cam = camera.detach().to(scene.dtype).resized(w, h)
@@ -228,14 +226,10 @@ def initial_hand(
     ``cfg`` gives ``peel_layers``, ``scan_tie_margin`` and ``scan_band`` (default: the
     defaults of :class:`~easyhoi.config.ContactStageConfig`).
 
-    Returns
-    -------
-    params_cam : HandParams
-        Hand in the object camera's frame, metres.
-    metric_scale : float
-        Metres per object unit.
-    note : dict
-        JSON-ready description (overlap pixels used, depths).
+    Returns:
+        params_cam (HandParams): Hand in the object camera's frame, metres.
+        metric_scale (float): Metres per object unit.
+        note (dict): JSON-ready description (overlap pixels used, depths).
     """
     cfg = ContactStageConfig() if cfg is None else cfg
     model = scene.hand_model
@@ -303,11 +297,10 @@ def fit_contact(
 ) -> StageResult:
     """Run stage 2 on ``state`` (modified in place; ends at the best state).
 
-    Returns
-    -------
-    StageResult
-        ``hand_params`` in the metric object frame, ``metric_scale``, history (``iou``,
-        ``contact_dist``, ``total``), and ``extra["registrations"]`` (one dict per registration).
+    Returns:
+        StageResult: ``hand_params`` in the metric object frame, ``metric_scale``, history (``iou``,
+            ``contact_dist``, ``total``), and ``extra["registrations"]`` (one dict per
+            registration).
     """
     start = time.perf_counter()
     loop = StageLoop("contact", cfg.max_iters, optim_cfg.history_every, progress)

@@ -35,13 +35,12 @@ def hand_change(
 ) -> dict:
     """JSON-ready ``hand_change`` block (module docstring) of a result's hand.
 
-    Parameters
-    ----------
-    model : HandModel the parameters belong to.
-    inp : HOIInput, for the estimator's hand and camera and the detector's keypoints.
-    params : HandParams, the result's hand in the metric object frame.
-    camera : Camera, the result's object camera (object units to pixels, full photo).
-    metric_scale : float, metres per object unit.
+    Args:
+        model: HandModel the parameters belong to.
+        inp: HOIInput, for the estimator's hand and camera and the detector's keypoints.
+        params: HandParams, the result's hand in the metric object frame.
+        camera: Camera, the result's object camera (object units to pixels, full photo).
+        metric_scale: float, metres per object unit.
     """
     dt = torch.float64
     with torch.no_grad():

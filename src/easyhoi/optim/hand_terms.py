@@ -114,16 +114,14 @@ def pose_prior_loss(
     the prior's task is to keep the optimizer from bending joints where no hand goes, not to
     overrule the photo.
 
-    Parameters
-    ----------
-    pose : (B, 45) or (45,) axis-angle articulation (joints 1..15), right-hand convention.
-    flexion_axes : (15, 3) unit flexion axes of the model's joints (rest frame).
-    reference : (45,) or (1, 45) articulation or None.
-    tables : dict from :func:`prior_tables` (default: built here).
+    Args:
+        pose: (B, 45) or (45,) axis-angle articulation (joints 1..15), right-hand convention.
+        flexion_axes: (15, 3) unit flexion axes of the model's joints (rest frame).
+        reference: (45,) or (1, 45) articulation or None.
+        tables: dict from :func:`prior_tables` (default: built here).
 
-    Returns
-    -------
-    () tensor: the batch mean of the summed squared excesses (radians^2).
+    Returns:
+        () tensor: the batch mean of the summed squared excesses (radians^2).
     """
     if not isinstance(pose, torch.Tensor):
         raise InvalidInputError("pose_prior_loss: pose must be a torch tensor")
@@ -148,18 +146,16 @@ def keypoint_loss(
 ) -> torch.Tensor:
     """Robust 2D keypoint term: ``sum_j w_j rho(|p_j - q_j| / scale) / sum_j w_j``.
 
-    Parameters
-    ----------
-    pred : (B, J, 2) or (J, 2) reprojected keypoints, pixels.
-    target : (J, 2) detected keypoints, pixels (constant).
-    scale : float, the hand's size in the photo in pixels (residuals are divided by it).
-    sigma : float, the Geman-McClure scale in units of ``scale``: residuals well below it cost
-        ``(r / sigma)^2``, residuals well above it cost about 1.
-    weights : (J,) non-negative per-joint confidences or None (all 1).
+    Args:
+        pred: (B, J, 2) or (J, 2) reprojected keypoints, pixels.
+        target: (J, 2) detected keypoints, pixels (constant).
+        scale: float, the hand's size in the photo in pixels (residuals are divided by it).
+        sigma: float, the Geman-McClure scale in units of ``scale``: residuals well below it cost
+            ``(r / sigma)^2``, residuals well above it cost about 1.
+        weights: (J,) non-negative per-joint confidences or None (all 1).
 
-    Returns
-    -------
-    () tensor in [0, 1): the batch mean.
+    Returns:
+        () tensor in [0, 1): the batch mean.
     """
     if not (scale > 0 and sigma > 0 and math.isfinite(scale) and math.isfinite(sigma)):
         raise InvalidInputError(f"keypoint_loss: scale and sigma must be > 0 ({scale}, {sigma})")

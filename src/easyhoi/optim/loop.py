@@ -66,16 +66,11 @@ class Patience:
 class StageLoop:
     """Bookkeeping shared by the stages: history, progress callback, best state, stopping.
 
-    Parameters
-    ----------
-    name : str
-        Stage name (for the callback and errors).
-    max_iters : int
-        Iteration cap (for the callback).
-    history_every : int
-        Record every this many iterations.
-    progress : callable or None
-        ``progress(stage, iteration, max_iters, terms)``.
+    Args:
+        name (str): Stage name (for the callback and errors).
+        max_iters (int): Iteration cap (for the callback).
+        history_every (int): Record every this many iterations.
+        progress (callable or None): ``progress(stage, iteration, max_iters, terms)``.
     """
 
     def __init__(self, name: str, max_iters: int, history_every: int, progress=None):
@@ -181,9 +176,8 @@ def run_phases(
     With ``opt`` None (nothing to optimise) a single phase of 0 iterations at the first
     fraction runs, stop reason ``"nothing_to_optimise"``.
 
-    Returns
-    -------
-    (iterations run, stop reason of the last phase, the last :class:`Phase`).
+    Returns:
+        (iterations run, stop reason of the last phase, the last :class:`Phase`).
     """
     sizes = phase_sizes(max_iters, len(fractions)) if opt is not None else [0]
     it, reason, phase = 0, "max_iters", None

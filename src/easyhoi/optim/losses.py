@@ -95,20 +95,15 @@ def soft_iou_loss(
     ``L = 1 - I / (U + eps)`` with ``I = sum(A * B)`` and ``U = sum(A) + sum(B) - I``, the sums
     running over the pixels of each mask.
 
-    Parameters
-    ----------
-    pred : (H, W) or (B, H, W) float tensor
-        Predicted (rendered) soft mask, values in [0, 1].
-    target : same shape as ``pred``
-        Target mask (bool or float in [0, 1]).
-    eps : float
-        Added to the union; two empty masks give ``L = 1`` (an empty render is a failure).
-    reduction : {"mean", "sum", "none"}
-        How the per-mask losses (B,) are combined.
+    Args:
+        pred ((H, W) or (B, H, W) float tensor): Predicted (rendered) soft mask, values in [0, 1].
+        target (same shape as ``pred``): Target mask (bool or float in [0, 1]).
+        eps (float): Added to the union; two empty masks give ``L = 1`` (an empty render is a
+            failure).
+        reduction ({"mean", "sum", "none"}): How the per-mask losses (B,) are combined.
 
-    Returns
-    -------
-    () tensor, or (B,) with ``reduction="none"``; values in [0, 1].
+    Returns:
+        () tensor, or (B,) with ``reduction="none"``; values in [0, 1].
     """
     A, B = _as_batched_masks(pred, target, "soft_iou_loss")
     inter = (A * B).sum(dim=(1, 2))
@@ -119,14 +114,12 @@ def soft_iou_loss(
 def mask_mse(pred: torch.Tensor, target: torch.Tensor, reduction: str = "mean") -> torch.Tensor:
     """Mean squared difference between two masks.
 
-    Parameters
-    ----------
-    pred, target : (H, W) or (B, H, W) tensors, values in [0, 1]
-    reduction : {"mean", "sum", "none"}
+    Args:
+        pred, target: (H, W) or (B, H, W) tensors, values in [0, 1]
+        reduction: {"mean", "sum", "none"}
 
-    Returns
-    -------
-    () tensor, or (B,) with ``reduction="none"`` (mean over the pixels of each mask).
+    Returns:
+        () tensor, or (B,) with ``reduction="none"`` (mean over the pixels of each mask).
     """
     A, B = _as_batched_masks(pred, target, "mask_mse")
     return _reduce(((A - B) ** 2).mean(dim=(1, 2)), reduction)
@@ -165,24 +158,19 @@ def sinkhorn_mask_loss(
     is ``|x - y|^2 / 2``: for two single-cell masks it equals half the squared distance of
     their centres.
 
-    Parameters
-    ----------
-    pred : (H, W) or (B, H, W) float tensor
-        Predicted soft mask in [0, 1]. An all-zero prediction is a uniform distribution
-        (because of ``MASS_EPS``), not an error.
-    target : same shape as ``pred``
-        Target mask; must be non-empty (else :class:`InvalidInputError`).
-    grid : int
-        Cells along each side of the coarse grid (>= 1).
-    blur : float
-        Entropic blur of geomloss (length scale, in the normalised coordinates).
-    scaling : float
-        epsilon-scaling ratio of geomloss, in (0, 1); closer to 1 is more accurate and slower.
-    reduction : {"mean", "sum", "none"}
+    Args:
+        pred ((H, W) or (B, H, W) float tensor): Predicted soft mask in [0, 1]. An all-zero
+            prediction is a uniform distribution (because of ``MASS_EPS``), not an error.
+        target (same shape as ``pred``): Target mask; must be non-empty (else
+            :class:`InvalidInputError`).
+        grid (int): Cells along each side of the coarse grid (>= 1).
+        blur (float): Entropic blur of geomloss (length scale, in the normalised coordinates).
+        scaling (float): epsilon-scaling ratio of geomloss, in (0, 1); closer to 1 is more accurate
+            and slower.
+        reduction: {"mean", "sum", "none"}
 
-    Returns
-    -------
-    () tensor, or (B,) with ``reduction="none"``; non-negative.
+    Returns:
+        () tensor, or (B,) with ``reduction="none"``; non-negative.
     """
     from geomloss import SamplesLoss
 
@@ -236,18 +224,14 @@ def penetration_loss(
     counted vertex contributes its full depth ``-d(v)``. With ``threshold = 0`` this is exactly
     the term of docs/method.md. The gradient is ``-1/V`` for each counted vertex and 0 elsewhere.
 
-    Parameters
-    ----------
-    sdf_values : (B, V) or (V,) float tensor
-        Object signed distance at every hand vertex (inside < 0).
-    threshold : float
-        Vertices with ``d < threshold`` count (should be <= 0).
-    reduction : {"mean", "sum", "none"}
-        Combines the per-hand values (B,).
+    Args:
+        sdf_values ((B, V) or (V,) float tensor): Object signed distance at every hand vertex
+            (inside < 0).
+        threshold (float): Vertices with ``d < threshold`` count (should be <= 0).
+        reduction ({"mean", "sum", "none"}): Combines the per-hand values (B,).
 
-    Returns
-    -------
-    () tensor, or (B,) with ``reduction="none"``; non-negative.
+    Returns:
+        () tensor, or (B,) with ``reduction="none"``; non-negative.
     """
     d = _check_sdf(sdf_values, "penetration_loss")
     if d.shape[1] == 0:
@@ -271,23 +255,19 @@ def contact_loss(
     the penetration term is a mean over the vertices. A vertex farther than ``max_distance``
     contributes 0 but still counts in C.
 
-    Parameters
-    ----------
-    sdf_values : (B, C) or (C,) float tensor
-        Object signed distance at the C contact-zone vertices of each hand.
-    max_distance : float, (C,) tensor or None
-        None (the paper): every contact vertex outside the object is attracted. A positive
-        number: only vertices with ``0 < d < max_distance`` are attracted (vertices far away,
-        for example on fingers that do not touch, are left alone). A (C,) tensor of positive
-        numbers: one radius per contact vertex.
-    reduction : {"mean", "sum", "none"}
-        Combines the per-hand sums (B,).
-    reference_count : float or None
-        None: the plain sum over the C vertices. A positive number K: the sum times ``K / C``.
+    Args:
+        sdf_values ((B, C) or (C,) float tensor): Object signed distance at the C contact-zone
+            vertices of each hand.
+        max_distance (float, (C,) tensor or None): None (the paper): every contact vertex outside
+            the object is attracted. A positive number: only vertices with ``0 < d < max_distance``
+            are attracted (vertices far away, for example on fingers that do not touch, are left
+            alone). A (C,) tensor of positive numbers: one radius per contact vertex.
+        reduction ({"mean", "sum", "none"}): Combines the per-hand sums (B,).
+        reference_count (float or None): None: the plain sum over the C vertices. A positive number
+            K: the sum times ``K / C``.
 
-    Returns
-    -------
-    () tensor, or (B,) with ``reduction="none"``; non-negative.
+    Returns:
+        () tensor, or (B,) with ``reduction="none"``; non-negative.
     """
     d = _check_sdf(sdf_values, "contact_loss")
     gap = d.clamp_min(0.0)
@@ -322,18 +302,14 @@ def pose_reg_loss(
 ) -> torch.Tensor:
     """L1 distance of the articulation from the estimator's: ``||theta - theta_0||_1``.
 
-    Parameters
-    ----------
-    theta : (B, P) or (P,) float tensor
-        Current articulation (P = 45 for MANO axis-angle).
-    theta0 : same shape as ``theta`` (or broadcastable)
-        Reference articulation; treated as a constant.
-    reduction : {"mean", "sum", "none"}
-        Combines the per-hand norms (B,).
+    Args:
+        theta ((B, P) or (P,) float tensor): Current articulation (P = 45 for MANO axis-angle).
+        theta0 (same shape as ``theta`` (or broadcastable)): Reference articulation; treated as a
+            constant.
+        reduction ({"mean", "sum", "none"}): Combines the per-hand norms (B,).
 
-    Returns
-    -------
-    () tensor, or (B,) with ``reduction="none"``.
+    Returns:
+        () tensor, or (B,) with ``reduction="none"``.
     """
     if not isinstance(theta, torch.Tensor):
         raise InvalidInputError("pose_reg_loss: theta must be a torch tensor")

@@ -63,20 +63,18 @@ def refine_terms(
 ) -> dict:
     """The weighted loss terms of stage 3 for ``params`` (differentiable).
 
-    Parameters
-    ----------
-    scene : Scene
-    params : HandParams (batch 1), metric object frame.
-    metric_scale : float, metres per object unit.
-    theta0 : (1, 45) estimator articulation.
-    cfg : RefineStageConfig (weights, threshold, SDF resolution).
-    camera : Camera at the render resolution (needed when the mask term is on).
-    masks : dict from :meth:`Scene.masks_at` at that resolution.
+    Args:
+        scene: Scene
+        params: HandParams (batch 1), metric object frame.
+        metric_scale: float, metres per object unit.
+        theta0: (1, 45) estimator articulation.
+        cfg: RefineStageConfig (weights, threshold, SDF resolution).
+        camera: Camera at the render resolution (needed when the mask term is on).
+        masks: dict from :meth:`Scene.masks_at` at that resolution.
 
-    Returns
-    -------
-    dict of str -> () tensor: the unweighted terms present (``keypoints``, ``prior``, ``mask``,
-    ``penetration``, ``contact``, ``reg``) and ``total`` (weighted sum).
+    Returns:
+        dict of str -> () tensor: the unweighted terms present (``keypoints``, ``prior``, ``mask``,
+        ``penetration``, ``contact``, ``reg``) and ``total`` (weighted sum).
     """
     out = scene.hand_model(params)
     verts = out.vertices[0] / metric_scale
@@ -147,9 +145,9 @@ def push_out(
     :data:`PUSH_OUT_MAX` normalised units in all. The articulation is untouched, so a grasp that
     sank in as a whole (a depth or scale error) comes out without bending fingers.
 
-    Returns
-    -------
-    (3,) translation in object units and a JSON-ready note (steps, distance in normalised units).
+    Returns:
+        (3,) translation in object units and a JSON-ready note (steps, distance in normalised
+        units).
     """
     with torch.no_grad():
         verts = scene.hand_model(params).vertices[0] / metric_scale
@@ -195,15 +193,13 @@ def fit_refine(
 ) -> tuple[HandParams, StageResult]:
     """Run stage 3 from ``params0`` (metric object frame).
 
-    Parameters
-    ----------
-    theta0 : (1, 45) or None
-        Articulation the regulariser pulls towards (default: ``params0.pose``).
+    Args:
+        theta0 ((1, 45) or None): Articulation the regulariser pulls towards (default:
+            ``params0.pose``).
 
-    Returns
-    -------
-    params : HandParams, the refined hand (metric object frame, detached).
-    result : StageResult with the history of every term.
+    Returns:
+        params: HandParams, the refined hand (metric object frame, detached).
+        result: StageResult with the history of every term.
     """
     start = time.perf_counter()
     dt = scene.dtype

@@ -64,19 +64,17 @@ def contact_points(
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Hand and object contact points from the mutual-occlusion regions (module docstring).
 
-    Parameters
-    ----------
-    scene : Scene
-    hand_verts : (V, 3) hand vertices in the object frame (object units).
-    camera : Camera at the render resolution.
-    masks : dict from :meth:`Scene.masks_at` at that resolution.
-    cfg : ContactStageConfig
+    Args:
+        scene: Scene
+        hand_verts: (V, 3) hand vertices in the object frame (object units).
+        camera: Camera at the render resolution.
+        masks: dict from :meth:`Scene.masks_at` at that resolution.
+        cfg: ContactStageConfig
 
-    Returns
-    -------
-    hand_points : (N, 3) float64, object frame.
-    object_points : (N, 3) float64, object frame (one per ray, same rays as the hand points).
-    info : dict with pixel and point counts.
+    Returns:
+        hand_points: (N, 3) float64, object frame.
+        object_points: (N, 3) float64, object frame (one per ray, same rays as the hand points).
+        info: dict with pixel and point counts.
     """
     v = hand_verts.detach()
     faces = scene.hand_model.faces
@@ -117,11 +115,10 @@ def register_contacts(
     """Contact registration at one resolution: :func:`contact_points` (same parameters), then
     translation ICP.
 
-    Returns
-    -------
-    D : (3,) ICP translation (object frame) or None when too few contact points.
-    anchor : (3,) centroid of the hand contact points or None.
-    info : dict with point counts and the ICP RMSE history.
+    Returns:
+        D: (3,) ICP translation (object frame) or None when too few contact points.
+        anchor: (3,) centroid of the hand contact points or None.
+        info: dict with point counts and the ICP RMSE history.
     """
     src, tgt, info = contact_points(scene, hand_verts, camera, masks, cfg)
     if len(src) < MIN_CONTACT_POINTS or len(tgt) < MIN_CONTACT_POINTS:

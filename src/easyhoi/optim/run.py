@@ -116,36 +116,29 @@ def optimize(
 ) -> HOIResult:
     """Run the three-stage optimizer on one input.
 
-    Parameters
-    ----------
-    inp : HOIInput
-        Photo, masks, object mesh (canonical frame, any scale), hand estimate and its camera.
-    config : OptimConfig or None
-        Optimizer settings (default: the default preset's, ``get_preset().optim``); an
-        :class:`~easyhoi.config.EasyHOIConfig` is accepted and its ``optim`` used.
-    hand_model : HandModel or None
-        The run's hand model (:attr:`easyhoi.settings.RunSettings.hand_model`), the one
-        ``inp.hand_params`` belong to. None only for the built-in open hand
-        (:func:`easyhoi.hand.builtin_hand_model`); a MANO model must be passed in.
-    progress : callable or None
-        ``progress(stage_name, iteration, max_iters, {loss terms})``, called every
-        ``config.history_every`` iterations of every stage.
-    device : str, torch.device or None
-        Where the optimisation runs ("cpu", "cuda", ...; None: the CPU). The run's resolved
-        device is :attr:`easyhoi.settings.RunSettings.device`. The result is on the CPU.
+    Args:
+        inp (HOIInput): Photo, masks, object mesh (canonical frame, any scale), hand estimate and
+            its camera.
+        config (OptimConfig or None): Optimizer settings (default: the default preset's,
+            ``get_preset().optim``); an :class:`~easyhoi.config.EasyHOIConfig` is accepted and its
+            ``optim`` used.
+        hand_model (HandModel or None): The run's hand model
+            (:attr:`easyhoi.settings.RunSettings.hand_model`), the one ``inp.hand_params`` belong
+            to. None only for the built-in open hand (:func:`easyhoi.hand.builtin_hand_model`); a
+            MANO model must be passed in.
+        progress (callable or None): ``progress(stage_name, iteration, max_iters, {loss terms})``,
+            called every ``config.history_every`` iterations of every stage.
+        device (str, torch.device or None): Where the optimisation runs ("cpu", "cuda", ...; None:
+            the CPU). The run's resolved device is :attr:`easyhoi.settings.RunSettings.device`. The
+            result is on the CPU.
 
-    Returns
-    -------
-    HOIResult
-        Hand in the metric object frame, camera, metric scale, stage snapshots ("initial" and
-        one per stage that ran), timings (s), seed, config, plausibility.
+    Returns:
+        HOIResult: Hand in the metric object frame, camera, metric scale, stage snapshots ("initial"
+            and one per stage that ran), timings (s), seed, config, plausibility.
 
-    Raises
-    ------
-    InvalidInputError
-        Bad input or configuration.
-    OptimizationError
-        A stage diverged (NaN loss) or failed; the message names the stage.
+    Raises:
+        InvalidInputError: Bad input or configuration.
+        OptimizationError: A stage diverged (NaN loss) or failed; the message names the stage.
     """
     if config is None:
         config = get_preset().optim

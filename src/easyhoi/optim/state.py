@@ -93,26 +93,22 @@ class PhotoKeypoints:
 class Scene:
     """Everything the stages share for one run (built once by :meth:`from_input`).
 
-    Attributes
-    ----------
-    object_verts : (V_o, 3) tensor
-        Object vertices in object units (the input mesh, unchanged).
-    object_faces : (F_o, 3) long tensor
-    watertight : trimesh.Trimesh
-        A watertight version of the object (the input itself when already watertight), used
-        for the SDF and the plausibility metrics.
-    center : (3,) tensor
-        Centre of the object's bounding box (object units).
-    extent : float
-        Largest side of the object's bounding box (object units): one normalised unit.
-    hand_model : HandModel
-    regions : HandRegions
-    dtype : torch.dtype
-    image_size : (H, W)
-    masks : dict of str -> (H, W) tensor
-        Full-resolution float masks ``hand`` (M_h), ``object`` (M_o), ``amodal`` (M^_o).
-    keypoints : PhotoKeypoints or None
-        The detector's 2D hand keypoints (``HOIInput.meta["keypoints2d"]``), when given.
+    Attributes:
+        object_verts ((V_o, 3) tensor): Object vertices in object units (the input mesh, unchanged).
+        object_faces: (F_o, 3) long tensor
+        watertight (trimesh.Trimesh): A watertight version of the object (the input itself when
+            already watertight), used for the SDF and the plausibility metrics.
+        center ((3,) tensor): Centre of the object's bounding box (object units).
+        extent (float): Largest side of the object's bounding box (object units): one normalised
+            unit.
+        hand_model: HandModel
+        regions: HandRegions
+        dtype: torch.dtype
+        image_size: (H, W)
+        masks (dict of str -> (H, W) tensor): Full-resolution float masks ``hand`` (M_h), ``object``
+            (M_o), ``amodal`` (M^_o).
+        keypoints (PhotoKeypoints or None): The detector's 2D hand keypoints
+            (``HOIInput.meta["keypoints2d"]``), when given.
     """
 
     object_verts: torch.Tensor
@@ -242,16 +238,12 @@ class Scene:
         z_object]``) but the object's z-buffer is cached, since the object and the camera do
         not move in stages 2 and 3.
 
-        Parameters
-        ----------
-        hand_verts : (V, 3) tensor
-            Hand vertices in object units.
-        camera : Camera
-            Object camera at the render resolution.
+        Args:
+            hand_verts ((V, 3) tensor): Hand vertices in object units.
+            camera (Camera): Object camera at the render resolution.
 
-        Returns
-        -------
-        hand : (h, w) complete soft silhouette; visible : (h, w); hand_depth : (h, w) no grad.
+        Returns:
+            hand: (h, w) complete soft silhouette; visible : (h, w); hand_depth : (h, w) no grad.
         """
         sigma = SILHOUETTE_SIGMA if sigma is None else sigma
         faces = self.hand_model.faces

@@ -35,30 +35,21 @@ def amodal_prompts(
 ) -> tuple[np.ndarray, tuple[float, float, float, float]]:
     """Point and box prompts for amodal re-segmentation.
 
-    Parameters
-    ----------
-    visible_object_mask : (H, W) bool
-        Visible object mask M_o.
-    n_per_part : int
-        Points sampled in each connected part (fewer when a part is smaller).
-    seed : int
-        Seed of the sampling.
-    box_pad : float
-        The box is M_o's bounding box enlarged by this fraction of its size on each side,
-        clipped to the image.
+    Args:
+        visible_object_mask ((H, W) bool): Visible object mask M_o.
+        n_per_part (int): Points sampled in each connected part (fewer when a part is smaller).
+        seed (int): Seed of the sampling.
+        box_pad (float): The box is M_o's bounding box enlarged by this fraction of its size on each
+            side, clipped to the image.
 
-    Returns
-    -------
-    points : (N, 2) float
-        (u, v) pixel coordinates, ``n_per_part`` per part, drawn with probability proportional
-        to the distance from the part's border (so they fall well inside).
-    box : (u0, v0, u1, v1)
-        Loose box in pixels.
+    Returns:
+        points ((N, 2) float): (u, v) pixel coordinates, ``n_per_part`` per part, drawn with
+            probability proportional to the distance from the part's border (so they fall well
+            inside).
+        box ((u0, v0, u1, v1)): Loose box in pixels.
 
-    Raises
-    ------
-    NoObjectError
-        ``visible_object_mask`` is empty.
+    Raises:
+        NoObjectError: ``visible_object_mask`` is empty.
     """
     m = np.asarray(visible_object_mask)
     if m.ndim != 2:
@@ -115,18 +106,14 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
 class ClassicalAmodalSegmenter:
     """Prompt-driven GrabCut with a convex-hull shape-completion fallback.
 
-    Parameters
-    ----------
-    work_side : int
-        Longer side of the working crop (box + margin) in pixels.
-    margin : float
-        Crop margin around the box as a fraction of the box size.
-    leak_fraction : float
-        GrabCut results covering more of the box than this are treated as leaks.
-    point_radius : float
-        Radius of the sure-foreground disk around each prompt point, in working pixels.
-    iterations, seed : int
-        GrabCut iterations and OpenCV RNG seed.
+    Args:
+        work_side (int): Longer side of the working crop (box + margin) in pixels.
+        margin (float): Crop margin around the box as a fraction of the box size.
+        leak_fraction (float): GrabCut results covering more of the box than this are treated as
+            leaks.
+        point_radius (float): Radius of the sure-foreground disk around each prompt point, in
+            working pixels.
+        iterations, seed (int): GrabCut iterations and OpenCV RNG seed.
     """
 
     def __init__(

@@ -185,6 +185,7 @@ _BUILTIN_MODULES: list[str] = [
     "easyhoi.perception.adapters.grounded_sam",
     "easyhoi.perception.adapters.depth",
     "easyhoi.perception.adapters.diffusion",
+    "easyhoi.perception.adapters.shap_e",
 ]
 
 

@@ -215,8 +215,11 @@ def perceive(
         mesh = pv.object_mesh.copy()
         report.notes.append("object mesh provided (imported)")
     else:
+        from easyhoi.perception.objects import hand_inputs
+
         reconstructor = _backend(pc, "object", pc.object, seed, run.device)
-        mesh = timed("object mesh", reconstructor.reconstruct, inpainted, amodal)
+        hand_kw = hand_inputs(reconstructor, chosen, model, seg.hand_mask, seg.object_mask)
+        mesh = timed("object mesh", reconstructor.reconstruct, inpainted, amodal, **hand_kw)
     if not mesh.is_watertight:
         mesh, wt = timed("watertight", make_watertight, mesh)
         report.notes.append(f"object mesh repaired ({wt.method})")
@@ -235,6 +238,7 @@ def perceive(
             "hand_side": chosen.side,
             "detection": {k: v for k, v in chosen.meta.items() if _jsonable(v)},
             "perception": report.to_dict(),
+            "object_shape": (getattr(mesh, "metadata", None) or {}).get("easyhoi", {}).get("shape"),
         },
     )
     return inp, report
@@ -326,6 +330,7 @@ def _prompted(segmenter, name: str, prompts: Prompts | None):
 #: Backends that load large models from local folders, and the config fields naming them.
 _MODEL_DIR_FIELDS = {"sam": ("sam_dir",), "depth": ("depth_dir",),
                      "diffusion": ("diffusion_dir",),
+                     "shap-e": ("shape_dir",),
                      "grounded-sam": ("detector_dir", "sam_dir")}  # fmt: skip
 
 

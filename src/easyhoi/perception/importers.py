@@ -180,11 +180,10 @@ def crop_to_full_translation(
 ) -> np.ndarray:
     """Full-image camera translation (3,) from HaMeR's weak-perspective crop camera.
 
-    Parameters
-    ----------
-    pred_cam : (3,) (s, tx, ty) in the (flipped, for a left hand) crop.
-    box_center : (2,) crop centre (u, v) pixels; box_size : crop side in pixels.
-    image_size : (width, height); focal : full-image focal length in pixels.
+    Args:
+        pred_cam: (3,) (s, tx, ty) in the (flipped, for a left hand) crop.
+        box_center: (2,) crop centre (u, v) pixels; box_size : crop side in pixels.
+        image_size: (width, height); focal : full-image focal length in pixels.
     """
     s, tx, ty = (float(x) for x in np.asarray(pred_cam, dtype=np.float64).reshape(3))
     if s <= 0:
@@ -204,21 +203,19 @@ def load_hamer_hand(
 ) -> tuple[HandParams, Camera]:
     """Read one hand predicted by HaMeR (see module docs for every convention).
 
-    Parameters
-    ----------
-    source : path to ``.npz`` / ``.json`` / ``.pkl`` (safe unpickler: numpy content only), or a
-        dict. Key names and aliases: :data:`HAMER_KEYS`; nested dicts (``pred_mano_params``)
-        are searched. Arrays may carry a leading batch dimension (one entry per hand).
-    image_size : (width, height) of the full image; taken from ``img_size`` in the data when
-        None (both given and different -> error).
-    index : which hand of a batched file.
-    pose_offset : (45,) added to the pose (for files relative to MANO's mean hand).
+    Args:
+        source: path to ``.npz`` / ``.json`` / ``.pkl`` (safe unpickler: numpy content only), or a
+            dict. Key names and aliases: :data:`HAMER_KEYS`; nested dicts (``pred_mano_params``) are
+            searched. Arrays may carry a leading batch dimension (one entry per hand).
+        image_size: (width, height) of the full image; taken from ``img_size`` in the data when
+            None (both given and different -> error).
+        index: which hand of a batched file.
+        pose_offset: (45,) added to the pose (for files relative to MANO's mean hand).
 
-    Returns
-    -------
-    params : HandParams, batch 1, float32, ``side`` from ``is_right`` (default right);
-        ``transl = cam_t``.
-    camera : Camera.hamer_convention(W, H) with R = I, t = 0.
+    Returns:
+        params: HandParams, batch 1, float32, ``side`` from ``is_right`` (default right); ``transl
+            = cam_t``.
+        camera: Camera.hamer_convention(W, H) with R = I, t = 0.
     """
     if isinstance(source, dict):
         raw = source
@@ -325,11 +322,10 @@ def load_object_mesh(path: str | Path) -> trimesh.Trimesh:
     Scenes are flattened into one mesh (node transforms applied); the mesh is validated
     (non-empty, finite, valid faces) by :func:`easyhoi.geometry.mesh.load_mesh`.
 
-    Returns
-    -------
-    trimesh.Trimesh with ``metadata["easyhoi"] = {"source", "watertight", "winding_consistent",
-    "num_vertices", "num_faces"}``; a mesh that is not watertight is returned as is (repair it
-    with the watertight post-processing before the SDF-based stages).
+    Returns:
+        trimesh.Trimesh with ``metadata["easyhoi"] = {"source", "watertight", "winding_consistent",
+        "num_vertices", "num_faces"}``; a mesh that is not watertight is returned as is (repair it
+        with the watertight post-processing before the SDF-based stages).
     """
     from easyhoi.errors import InputTooLargeError
     from easyhoi.geometry.mesh import load_mesh

@@ -21,16 +21,12 @@ from easyhoi.perception.masks import check_mask
 class OpenCVInpainter:
     """Telea inpainting of a dilated mask.
 
-    Parameters
-    ----------
-    dilate_px : int
-        Dilation of the mask before filling, in pixels of the input image (>= 0).
-    radius : float
-        Telea neighbourhood radius in working pixels.
-    work_side : int
-        The fill is computed on the image downscaled so its longer side is at most this.
-    method : str
-        ``"telea"`` or ``"ns"`` (Navier-Stokes).
+    Args:
+        dilate_px (int): Dilation of the mask before filling, in pixels of the input image (>= 0).
+        radius (float): Telea neighbourhood radius in working pixels.
+        work_side (int): The fill is computed on the image downscaled so its longer side is at most
+            this.
+        method (str): ``"telea"`` or ``"ns"`` (Navier-Stokes).
     """
 
     def __init__(

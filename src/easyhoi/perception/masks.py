@@ -68,19 +68,13 @@ def filter_by_hand_contact(
     of its contour lies within ``max_gap_px`` (Euclidean) of the hand's contour, or when it
     overlaps the hand.
 
-    Parameters
-    ----------
-    candidates : sequence of (H, W) bool
-        Object candidate masks.
-    hand_mask : (H, W) bool
-        Visible hand mask.
-    max_gap_px : float
-        Largest allowed gap between the two contours, in pixels (>= 0).
+    Args:
+        candidates (sequence of (H, W) bool): Object candidate masks.
+        hand_mask ((H, W) bool): Visible hand mask.
+        max_gap_px (float): Largest allowed gap between the two contours, in pixels (>= 0).
 
-    Returns
-    -------
-    list of (H, W) bool
-        The kept components (possibly empty).
+    Returns:
+        list of (H, W) bool: The kept components (possibly empty).
     """
     hand = np.asarray(hand_mask).astype(bool)
     if max_gap_px < 0:
@@ -112,26 +106,20 @@ def _check_keypoints(hand: HandDetection) -> np.ndarray:
 class ClassicalHOISegmenter:
     """Hand mask from the skeleton; held object by ranked region proposals.
 
-    Parameters
-    ----------
-    crop_factor : float
-        Working crop side as a multiple of the hand's keypoint extent (at least 2 palm lengths).
-    work_side : int
-        Longer side of the working crop in pixels (speed / quality trade-off).
-    segment_scale : float
-        Felzenszwalb scale at ``work_side`` (larger: fewer, bigger base segments).
-    min_score : float
-        Best hypothesis score below which the hand holds no object.
-    click_side : int
-        Longer side of the working crop when the prompts are object points only: the clicked
-        object is grown from the points by GrabCut at this resolution (thin objects need the
-        detail), and the region proposals are only computed when GrabCut collapses.
-    refine_top : int
-        Number of best distinct hypotheses refined by GrabCut and scored again.
-    iterations : int
-        GrabCut iterations.
-    seed : int
-        Seed of OpenCV's RNG (GrabCut's GMM initialisation uses k-means).
+    Args:
+        crop_factor (float): Working crop side as a multiple of the hand's keypoint extent (at least
+            2 palm lengths).
+        work_side (int): Longer side of the working crop in pixels (speed / quality trade-off).
+        segment_scale (float): Felzenszwalb scale at ``work_side`` (larger: fewer, bigger base
+            segments).
+        min_score (float): Best hypothesis score below which the hand holds no object.
+        click_side (int): Longer side of the working crop when the prompts are object points
+            only: the clicked object is grown from the points by GrabCut at this resolution
+            (thin objects need the detail), and the region proposals are only computed when
+            GrabCut collapses.
+        refine_top (int): Number of best distinct hypotheses refined by GrabCut and scored again.
+        iterations (int): GrabCut iterations.
+        seed (int): Seed of OpenCV's RNG (GrabCut's GMM initialisation uses k-means).
     """
 
     def __init__(

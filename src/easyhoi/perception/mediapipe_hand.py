@@ -119,18 +119,12 @@ def roi_from_keypoints(kp: np.ndarray, width: int, height: int) -> tuple[float, 
 class MediaPipeHands:
     """MediaPipe Hands keypoint detector (offline, CPU, deterministic).
 
-    Parameters
-    ----------
-    max_hands : int
-        Most hands returned.
-    min_detection_confidence : float
-        Palm-detector threshold of pass 1.
-    model_complexity : int
-        0 (lite) or 1 (full) landmark model.
-    roi_search : bool
-        Run pass 2 (ROI search) when pass 1 finds no hand.
-    mirrored : bool
-        The input is a mirrored selfie image (keep MediaPipe's handedness label).
+    Args:
+        max_hands (int): Most hands returned.
+        min_detection_confidence (float): Palm-detector threshold of pass 1.
+        model_complexity (int): 0 (lite) or 1 (full) landmark model.
+        roi_search (bool): Run pass 2 (ROI search) when pass 1 finds no hand.
+        mirrored (bool): The input is a mirrored selfie image (keep MediaPipe's handedness label).
     """
 
     def __init__(
@@ -272,10 +266,9 @@ class MediaPipeHands:
     def detect(self, image: np.ndarray) -> list[HandDetection]:
         """All hands in an (H, W, 3) uint8 RGB image, most confident first.
 
-        Returns
-        -------
-        list of HandDetection
-            ``keypoints2d`` (21, 2) pixels, ``keypoints3d`` (21, 3) metres; empty when no hand.
+        Returns:
+            list of HandDetection: ``keypoints2d`` (21, 2) pixels, ``keypoints3d`` (21, 3) metres;
+                empty when no hand.
         """
         image = check_image(image)
         with _quiet_native_stderr():

@@ -124,21 +124,15 @@ def group(
 ) -> tuple[tuple[frozenset, ...], np.ndarray]:
     """Selective-search grouping of base segments.
 
-    Parameters
-    ----------
-    labels : (h, w) int
-        Base segments 0..n-1 (-1 excluded).
-    lab : (h, w, 3)
-        Lab image (OpenCV 8-bit ranges).
-    max_size : float, optional
-        Merged regions larger than this many pixels are not recorded (nor merged further).
+    Args:
+        labels ((h, w) int): Base segments 0..n-1 (-1 excluded).
+        lab ((h, w, 3)): Lab image (OpenCV 8-bit ranges).
+        max_size (float, optional): Merged regions larger than this many pixels are not recorded
+            (nor merged further).
 
-    Returns
-    -------
-    regions : tuple of frozenset
-        The n base segments, then every merged region.
-    sizes : (n,) float
-        Base segment sizes.
+    Returns:
+        regions (tuple of frozenset): The n base segments, then every merged region.
+        sizes ((n,) float): Base segment sizes.
     """
     n = int(labels.max()) + 1 if (labels >= 0).any() else 0
     if n == 0:

@@ -47,34 +47,23 @@ HOLD_ROLL_STEP_DEG = 30.0
 class SynthScene:
     """One synthetic hand-object image with its ground truth.
 
-    Attributes
-    ----------
-    seed : int
-    object : SynthObject
-        Object in the world frame (metres).
-    grasp : Grasp
-        The synthesized grasp (its params are the GT hand in the world frame).
-    camera : Camera
-        World-to-camera, OpenCV convention, float64.
-    image : (H, W, 3) uint8
-        The photo.
-    hand_mask, object_mask : (H, W) bool
-        Visible hand / object (hard raster, depth comparison; disjoint).
-    hand_amodal, object_amodal : (H, W) bool
-        Complete silhouettes (``hand_mask <= hand_amodal``).
-    depth : (H, W) float64
-        Camera z of the nearest surface, ``inf`` on the background.
-    keypoints_3d : (21, 3) float64
-        OpenPose-order hand keypoints, world frame.
-    keypoints_2d : (21, 2) float64
-        Their pixel coordinates.
-    timings : dict
-        Seconds per step ("object", "grasp", "camera", "render", "photo", "total").
-    hand_model : HandModel
-        The model the hand parameters belong to (not compared, not shown).
-    gravity_sd_cm : float or None
-        With ``make_scene(hold=True)``: the GT grasp's simulation displacement (cm) under gravity
-        along the camera's +y (image down), else None.
+    Attributes:
+        seed: int
+        object (SynthObject): Object in the world frame (metres).
+        grasp (Grasp): The synthesized grasp (its params are the GT hand in the world frame).
+        camera (Camera): World-to-camera, OpenCV convention, float64.
+        image ((H, W, 3) uint8): The photo.
+        hand_mask, object_mask ((H, W) bool): Visible hand / object (hard raster, depth comparison;
+            disjoint).
+        hand_amodal, object_amodal ((H, W) bool): Complete silhouettes (``hand_mask <=
+            hand_amodal``).
+        depth ((H, W) float64): Camera z of the nearest surface, ``inf`` on the background.
+        keypoints_3d ((21, 3) float64): OpenPose-order hand keypoints, world frame.
+        keypoints_2d ((21, 2) float64): Their pixel coordinates.
+        timings (dict): Seconds per step ("object", "grasp", "camera", "render", "photo", "total").
+        hand_model (HandModel): The model the hand parameters belong to (not compared, not shown).
+        gravity_sd_cm (float or None): With ``make_scene(hold=True)``: the GT grasp's simulation
+            displacement (cm) under gravity along the camera's +y (image down), else None.
 
     The arrays are read-only.
     """
@@ -118,14 +107,11 @@ class SynthScene:
     def to_hoi_input(self, perturbation="none", seed: int | None = None, rotate=None):
         """The optimizer's input for this scene (see :func:`easyhoi.synth.perturb.make_hoi_input`).
 
-        Parameters
-        ----------
-        perturbation : str or Perturbation
-            A level of :data:`easyhoi.synth.perturb.PERTURBATION_LEVELS` or a custom one.
-        seed : int, optional
-            Seed of the perturbations (default: the scene's seed).
-        rotate : bool, optional
-            Override the level's random canonical rotation of the object.
+        Args:
+            perturbation (str or Perturbation): A level of
+                :data:`easyhoi.synth.perturb.PERTURBATION_LEVELS` or a custom one.
+            seed (int, optional): Seed of the perturbations (default: the scene's seed).
+            rotate (bool, optional): Override the level's random canonical rotation of the object.
         """
         from easyhoi.synth.perturb import make_hoi_input
 
@@ -148,24 +134,16 @@ def _roll(up: np.ndarray, view: np.ndarray, angle: float) -> np.ndarray:
 def frame_camera(points: np.ndarray, view_dir, up, fov_deg: float, fill: float, size: int):
     """Camera looking along ``-view_dir`` at ``points`` so that their box fills ``fill``.
 
-    Parameters
-    ----------
-    points : (N, 3) float
-        World points to frame.
-    view_dir : (3,) float
-        Unit direction from the points towards the camera.
-    up : (3,) float
-        World direction shown as image up.
-    fov_deg : float
-        Vertical field of view.
-    fill : float
-        Fraction of the image side covered by the larger side of the points' 2D box.
-    size : int
-        Image width = height.
+    Args:
+        points ((N, 3) float): World points to frame.
+        view_dir ((3,) float): Unit direction from the points towards the camera.
+        up ((3,) float): World direction shown as image up.
+        fov_deg (float): Vertical field of view.
+        fill (float): Fraction of the image side covered by the larger side of the points' 2D box.
+        size (int): Image width = height.
 
-    Returns
-    -------
-    Camera (float64)
+    Returns:
+        Camera (float64)
     """
     f = 0.5 * size / np.tan(np.radians(fov_deg) / 2)
     target = 0.5 * (points.min(axis=0) + points.max(axis=0))
@@ -245,9 +223,8 @@ def _holding_roll(grasp: Grasp, mesh: trimesh.Trimesh, view, up, fov, fill, size
     :data:`HOLD_CM` is kept, else the one that moves the object least (an in-plane rotation
     changes neither visibility nor framing, so the view stays as drawn).
 
-    Returns
-    -------
-    (camera, displacement_cm, up): ``up`` the world direction now shown as image up.
+    Returns:
+        (camera, displacement_cm, up): ``up`` the world direction now shown as image up.
     """
     from easyhoi.metrics.simulation import simulation_displacement
 
@@ -280,30 +257,22 @@ def make_scene(
 ) -> SynthScene:
     """Build a synthetic scene.
 
-    Parameters
-    ----------
-    seed : int
-        Everything (object, hand shape, grasp, camera, photo) derives from it.
-    object_kind : str or Path
-        One of :data:`~easyhoi.synth.objects.OBJECT_KINDS`, a mesh path, or "random".
-    grasp_type : str
-        One of :data:`~easyhoi.synth.grasp.GRASP_TYPES` or "random".
-    image_size : int
-        Square image side in pixels (>= 32).
-    hand_model : HandModel, optional
-        Default: ``load_hand_model("open")`` (created once per process).
-    photo : bool
-        Render the shaded photo (else a flat grey image).
-    check_stability : bool
-        Run the physics check of the grasp (slow).
-    hold : bool
-        Turn the camera about its viewing axis until the grasp holds the object under gravity
-        along the image's down direction (:func:`_holding_roll`), as in a photo of an object
-        held up; the displacement is kept in ``SynthScene.gravity_sd_cm``.
+    Args:
+        seed (int): Everything (object, hand shape, grasp, camera, photo) derives from it.
+        object_kind (str or Path): One of :data:`~easyhoi.synth.objects.OBJECT_KINDS`, a mesh path,
+            or "random".
+        grasp_type (str): One of :data:`~easyhoi.synth.grasp.GRASP_TYPES` or "random".
+        image_size (int): Square image side in pixels (>= 32).
+        hand_model (HandModel, optional): Default: ``load_hand_model("open")`` (created once per
+            process).
+        photo (bool): Render the shaded photo (else a flat grey image).
+        check_stability (bool): Run the physics check of the grasp (slow).
+        hold (bool): Turn the camera about its viewing axis until the grasp holds the object under
+            gravity along the image's down direction (:func:`_holding_roll`), as in a photo of an
+            object held up; the displacement is kept in ``SynthScene.gravity_sd_cm``.
 
-    Returns
-    -------
-    SynthScene
+    Returns:
+        SynthScene
     """
     if not isinstance(image_size, int) or image_size < 32:
         raise InvalidInputError(f"image_size must be an integer >= 32, got {image_size!r}")

@@ -10,6 +10,7 @@ registry name                      module                extra (dependencies)
 ``("object", "depth")``            :mod:`.depth`         ``depth`` (transformers)
 ``("inpainter", "diffusion")``     :mod:`.diffusion`     ``diffusion`` (diffusers, transformers)
 ``("segmenter", "grounded-sam")``  :mod:`.grounded_sam`  ``sam`` (transformers)
+``("object", "shap-e")``           :mod:`.shap_e`        ``diffusion`` (diffusers, transformers)
 =================================  ====================  =======================================
 
 Weights are read with ``local_files_only=True`` from a folder the user gives (a folder written
@@ -31,11 +32,10 @@ __all__ = ["resolve_model_dir", "check_image", "check_bool_mask"]
 def resolve_model_dir(path: str | Path | None, what: str, marker: str | None = None) -> Path:
     """The existing local folder holding a model, or :class:`InvalidInputError`.
 
-    Parameters
-    ----------
-    path : folder given by the user.
-    what : model name for the message ("SAM", "depth", "inpainting").
-    marker : a file the folder must contain (``config.json``, ``model_index.json``).
+    Args:
+        path: folder given by the user.
+        what: model name for the message ("SAM", "depth", "inpainting").
+        marker: a file the folder must contain (``config.json``, ``model_index.json``).
     """
     if path is None:
         raise InvalidInputError(

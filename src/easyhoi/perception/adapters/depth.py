@@ -1,13 +1,19 @@
 """Object mesh from a monocular depth model (transformers, local folder) and the silhouette.
 
-The model (``AutoModelForDepthEstimation``: DPT, Depth Anything, ...) gives the visible front
-surface ``F(u, v)`` inside the mask, up to scale and shift. The back is not seen; it is the
-reflection of the front about the mid-surface ``F + h``, where ``h = sqrt(d (2R - d))`` is the
-silhouette-width half-thickness of :func:`~easyhoi.perception.objects.half_thickness_sq`
-(``d`` = distance to the contour, ``R`` = local half-width). So the back is ``F + 2h``, both
-surfaces meet on the contour, and the solid ``{ |z - (F + h)| <= h }`` is extracted as one
-closed mesh by marching cubes. A disk with a spherical front gives a sphere; a flat front gives
-the pure inflation.
+:class:`DepthObjectReconstructor` runs the shape hypotheses of :mod:`easyhoi.perception.shapes`
+with the depth map's front relief as one more piece of evidence (a cylinder's front bulges, a
+slab's is flat), and refines the fallback: when no parametric family wins, the mesh is the
+relief mesh of :func:`relief_mesh` below. ``metadata["easyhoi"]["method"]`` is ``"depth"``;
+``metadata["easyhoi"]["shape"]`` records the family that won (``"relief"`` for the refinement).
+
+Relief mesh: the model (``AutoModelForDepthEstimation``: DPT, Depth Anything, ...) gives the
+visible front surface ``F(u, v)`` inside the mask, up to scale and shift. The back is not seen;
+it is the reflection of the front about the mid-surface ``F + h``, where ``h = sqrt(d (2R - d))``
+is the silhouette-width half-thickness of
+:func:`~easyhoi.perception.objects.half_thickness_sq` (``d`` = distance to the contour, ``R`` =
+local half-width). So the back is ``F + 2h``, both surfaces meet on the contour, and the solid
+``{ |z - (F + h)| <= h }`` is extracted as one closed mesh by marching cubes. A disk with a
+spherical front gives a sphere; a flat front gives the pure inflation.
 
 Scale: relative depth has no unit. By default the front relief (5th-95th percentile range inside
 the mask) is set to ``relief`` x the silhouette's largest half-width; pass ``depth_scale``
@@ -47,18 +53,16 @@ def relief_mesh(
 ) -> trimesh.Trimesh:
     """Closed mesh from a front-surface prediction and the silhouette (see module docs).
 
-    Parameters
-    ----------
-    mask : (H, W) bool object mask (>= 16 pixels).
-    prediction : (H, W) float model output; "disparity" (larger = closer, what DPT and Depth
-        Anything predict) or "depth" (larger = farther).
-    relief : front relief range as a fraction of the largest half-width (auto scale).
-    depth_scale : pixels per model unit; overrides the automatic scale when given.
-    max_faces : face budget.
+    Args:
+        mask: (H, W) bool object mask (>= 16 pixels).
+        prediction: (H, W) float model output; "disparity" (larger = closer, what DPT and Depth
+            Anything predict) or "depth" (larger = farther).
+        relief: front relief range as a fraction of the largest half-width (auto scale).
+        depth_scale: pixels per model unit; overrides the automatic scale when given.
+        max_faces: face budget.
 
-    Returns
-    -------
-    trimesh.Trimesh, watertight, canonical frame, ``metadata["easyhoi"]["method"] == "depth"``.
+    Returns:
+        trimesh.Trimesh, watertight, canonical frame, ``metadata["easyhoi"]["method"] == "depth"``.
     """
     m = np.asarray(mask).astype(bool)
     pred = np.asarray(prediction, dtype=np.float64)
@@ -94,13 +98,12 @@ def relief_mesh(
 class DepthObjectReconstructor:
     """:class:`~easyhoi.perception.base.ObjectReconstructor` from a monocular depth model.
 
-    Parameters
-    ----------
-    model_dir : local folder with a transformers depth-estimation checkpoint and its image
-        processor (``config.json``, weights, ``preprocessor_config.json``).
-    output : "disparity" (default: DPT, Depth Anything) or "depth" (metric models).
-    relief, depth_scale, max_faces : see :func:`relief_mesh`.
-    device : torch device string.
+    Args:
+        model_dir: local folder with a transformers depth-estimation checkpoint and its image
+            processor (``config.json``, weights, ``preprocessor_config.json``).
+        output: "disparity" (default: DPT, Depth Anything) or "depth" (metric models).
+        relief, depth_scale, max_faces: see :func:`relief_mesh`.
+        device: torch device string.
     """
 
     def __init__(
@@ -144,9 +147,42 @@ class DepthObjectReconstructor:
         )[0, 0]
         return pred.cpu().numpy()
 
-    def reconstruct(self, image: np.ndarray, mask: np.ndarray) -> trimesh.Trimesh:
-        """Watertight mesh of the masked object (canonical frame, see module docs)."""
+    def reconstruct(
+        self,
+        image: np.ndarray,
+        mask: np.ndarray,
+        *,
+        visible_mask: np.ndarray | None = None,
+        hand_mask: np.ndarray | None = None,
+        hand_keypoints2d: np.ndarray | None = None,
+        hand_keypoints3d: np.ndarray | None = None,
+    ) -> trimesh.Trimesh:
+        """Watertight mesh of the masked object (canonical frame, see module docs).
+
+        The shape hypotheses of :mod:`easyhoi.perception.shapes` compete with the depth map's
+        front relief as extra evidence; when none of the parametric families wins (the
+        fallback, inflation), the relief mesh refines it: front from the depth map, back
+        mirrored. The hand arguments are those of
+        :meth:`~easyhoi.perception.objects.SilhouetteReconstructor.reconstruct`.
+        """
+        from easyhoi.perception.objects import shape_mesh
+
         img = check_image(image)
         m = check_bool_mask(mask, img.shape[:2], "object mask")
         pred = self.predict(img)
-        return relief_mesh(m, pred, self.output, self.relief, self.depth_scale, self.max_faces)
+        z = pred if self.output == "depth" else -pred
+        mesh = shape_mesh(m, img, None, visible_mask, hand_mask, hand_keypoints2d,
+                          hand_keypoints3d, front=z, method="depth")  # fmt: skip
+        md = mesh.metadata["easyhoi"]
+        if md["shape"]["shape"] != "inflation":
+            return mesh
+        relief = relief_mesh(m, pred, self.output, self.relief, self.depth_scale, self.max_faces)
+        rmd = relief.metadata["easyhoi"]
+        rmd["shape"] = dict(md["shape"], shape="relief")
+        for key in ("hand_cues", "grip_depth_m"):
+            if key in md:
+                rmd[key] = md[key]
+        if "meters_per_unit" in md:
+            rmd["meters_per_unit"] = rmd["pixels_per_unit"] * md["meters_per_unit"] / md[
+                "pixels_per_unit"]  # fmt: skip
+        return relief

@@ -29,16 +29,15 @@ DEFAULT_NEGATIVE_PROMPT = "hand, fingers, arm, person"
 class DiffusionInpainter:
     """:class:`~easyhoi.perception.base.Inpainter` backed by a diffusers pipeline.
 
-    Parameters
-    ----------
-    model_dir : local folder written by ``pipeline.save_pretrained`` (``model_index.json``).
-    prompt, negative_prompt : text guidance.
-    guidance_scale : classifier-free guidance (5, as the paper).
-    steps : denoising steps.
-    resolution : longer side of the working image, pixels.
-    dilate : extra dilation of the mask in pixels (0 when the caller already dilated it).
-    seed : generator seed; same input + seed -> same output.
-    device : torch device string.
+    Args:
+        model_dir: local folder written by ``pipeline.save_pretrained`` (``model_index.json``).
+        prompt, negative_prompt: text guidance.
+        guidance_scale: classifier-free guidance (5, as the paper).
+        steps: denoising steps.
+        resolution: longer side of the working image, pixels.
+        dilate: extra dilation of the mask in pixels (0 when the caller already dilated it).
+        seed: generator seed; same input + seed -> same output.
+        device: torch device string.
     """
 
     def __init__(

@@ -73,13 +73,12 @@ def choose_box(
 ) -> int | None:
     """Index of the detection that is the held object (see the module docs), or None.
 
-    Parameters
-    ----------
-    boxes : (N, 4) (x0, y0, x1, y1) pixels.
-    scores : (N,) detector scores in [0, 1].
-    keypoints2d : (21, 2) hand keypoints.
-    image_size : (width, height).
-    max_area : boxes covering more than this fraction of the photo are dropped.
+    Args:
+        boxes: (N, 4) (x0, y0, x1, y1) pixels.
+        scores: (N,) detector scores in [0, 1].
+        keypoints2d: (21, 2) hand keypoints.
+        image_size: (width, height).
+        max_area: boxes covering more than this fraction of the photo are dropped.
     """
     boxes = np.asarray(boxes, float).reshape(-1, 4)
     scores = np.asarray(scores, float).reshape(-1)
@@ -131,18 +130,16 @@ def _model_type(folder: Path) -> str:
 class GroundedSamSegmenter:
     """Text-prompted detector + SAM (:class:`~easyhoi.perception.base.HOISegmenter`).
 
-    Parameters
-    ----------
-    detector_dir : local folder of an OWLv2 or Grounding DINO detector (transformers format).
-    sam_dir : local folder of a SAM model (transformers format).
-    query : what the detector is asked for.
-    min_score : detections scoring below this are ignored.
-    hand_margin : the hand's SAM box is the keypoint box grown by this fraction per side.
-    device : torch device string.
+    Args:
+        detector_dir: local folder of an OWLv2 or Grounding DINO detector (transformers format).
+        sam_dir: local folder of a SAM model (transformers format).
+        query: what the detector is asked for.
+        min_score: detections scoring below this are ignored.
+        hand_margin: the hand's SAM box is the keypoint box grown by this fraction per side.
+        device: torch device string.
 
-    Attributes
-    ----------
-    last_detections : (boxes (N, 4), scores (N,)) of the latest detector run, or None.
+    Attributes:
+        last_detections: (boxes (N, 4), scores (N,)) of the latest detector run, or None.
     """
 
     def __init__(

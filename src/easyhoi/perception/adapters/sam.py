@@ -24,18 +24,16 @@ def prompts_from_mask(
 ) -> tuple[np.ndarray, tuple[float, float, float, float]]:
     """Point and box prompts from the visible object mask.
 
-    Parameters
-    ----------
-    visible_mask : (H, W) bool.
-    margin : the box is the mask's bounding box grown by ``margin`` x its size on each side,
-        clipped to the image.
-    min_pixels : components smaller than this get no point (specks).
+    Args:
+        visible_mask: (H, W) bool.
+        margin: the box is the mask's bounding box grown by ``margin`` x its size on each side,
+            clipped to the image.
+        min_pixels: components smaller than this get no point (specks).
 
-    Returns
-    -------
-    points : (N, 2) float (u, v) pixel centres, one per component: its most interior pixel
-        (maximum of the distance transform; ties broken by raster order, deterministic).
-    box : (u0, v0, u1, v1) float.
+    Returns:
+        points: (N, 2) float (u, v) pixel centres, one per component: its most interior pixel
+            (maximum of the distance transform; ties broken by raster order, deterministic).
+        box: (u0, v0, u1, v1) float.
     """
     m = np.asarray(visible_mask).astype(bool)
     if m.ndim != 2 or not m.any():
@@ -62,15 +60,13 @@ def prompts_from_mask(
 class SamAmodalSegmenter:
     """SAM prompted by points + box (:class:`~easyhoi.perception.base.AmodalSegmenter`).
 
-    Parameters
-    ----------
-    model_dir : local folder with a SAM checkpoint in transformers format (``config.json``,
-        weights and the processor config), e.g. a saved ``facebook/sam-vit-base``.
-    device : torch device string; "cpu" by default.
+    Args:
+        model_dir: local folder with a SAM checkpoint in transformers format (``config.json``,
+            weights and the processor config), e.g. a saved ``facebook/sam-vit-base``.
+        device: torch device string; "cpu" by default.
 
-    Attributes
-    ----------
-    last_scores : (3,) predicted IoU of the candidates of the latest call.
+    Attributes:
+        last_scores: (3,) predicted IoU of the candidates of the latest call.
     """
 
     def __init__(self, model_dir: str | Path | None = None, device: str = "cpu"):
@@ -97,13 +93,12 @@ class SamAmodalSegmenter:
     ) -> np.ndarray:
         """(H, W) bool amodal mask.
 
-        Parameters
-        ----------
-        image : (H, W, 3) uint8, the inpainted photo.
-        points : (N, 2) (u, v) positive points, or None to derive them (and the box) from
-            ``visible_mask`` with :func:`prompts_from_mask`.
-        box : (u0, v0, u1, v1) or None (derived likewise).
-        visible_mask : (H, W) bool visible object mask.
+        Args:
+            image: (H, W, 3) uint8, the inpainted photo.
+            points: (N, 2) (u, v) positive points, or None to derive them (and the box) from
+                ``visible_mask`` with :func:`prompts_from_mask`.
+            box: (u0, v0, u1, v1) or None (derived likewise).
+            visible_mask: (H, W) bool visible object mask.
         """
         img = check_image(image)
         H, W = img.shape[:2]

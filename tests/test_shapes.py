@@ -1,0 +1,241 @@
+"""Shape hypotheses: each family recovers a clean outline of its own kind; the hand's cues."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from easyhoi.perception.objects import SilhouetteReconstructor
+from easyhoi.perception.shapes import common, cuboid, superquadric
+from easyhoi.perception.shapes.hand_cues import PAD_M, hand_cues
+from tests.test_perception_objects import check_canonical, iou, silhouette
+
+
+def extents_px(mesh) -> np.ndarray:
+    return mesh.extents * mesh.metadata["easyhoi"]["pixels_per_unit"]
+
+
+def vase() -> tuple[np.ndarray, float]:
+    """Bottle-like outline about a vertical axis; returns the mask and the largest radius."""
+    m = np.zeros((240, 200), bool)
+    v = np.arange(240) + 0.5
+    r = np.where((v > 30) & (v < 210), 28 + 14 * np.sin((v - 30) / 180 * np.pi * 1.5), 0)
+    u = np.arange(200) + 0.5
+    m[:] = np.abs(u[None, :] - 100) <= r[:, None]
+    return m, float(r.max())
+
+
+def test_revolution_recovers_a_vase():
+    m, rmax = vase()
+    mesh = SilhouetteReconstructor().reconstruct(None, m)
+    assert mesh.metadata["easyhoi"]["method"] == "revolution"
+    check_canonical(mesh)
+    assert iou(silhouette(mesh, m.shape), m) > 0.95
+    assert extents_px(mesh)[2] == pytest.approx(2 * rmax, rel=0.04)
+
+
+def box_scene(half=(60, 35, 20), euler=(30, 40, 10), shape=(220, 260)):
+    """Silhouette and a shaded image of an orthographic box (each visible face its own grey)."""
+    R = Rotation.from_euler("xyz", euler, degrees=True).as_matrix()
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    c = (signs * half) @ R.T + [130, 110, 0]
+    img = np.full((*shape, 3), 90, np.uint8)
+    faces = cuboid._FACES  # corner indices match the sign order above
+    light = np.array([0.3, -0.5, -0.8]) / np.linalg.norm([0.3, -0.5, -0.8])
+    for idx, n in faces:
+        nw = R @ np.asarray(n, float)
+        if nw[2] < 0:  # faces the camera (z away from it)
+            g = int(40 + 200 * max(0.0, float(nw @ light)))
+            cv2.fillConvexPoly(img, np.round(c[list(idx), :2]).astype(np.int32), (g, g, g))
+    m = np.zeros(shape, np.uint8)
+    cv2.fillConvexPoly(m, cv2.convexHull(np.round(c[:, :2]).astype(np.int32)), 1)
+    return m.astype(bool), img
+
+
+def test_cuboid_recovers_a_box_and_its_depth():
+    m, img = box_scene()
+    mesh = SilhouetteReconstructor().reconstruct(img, m)
+    md = mesh.metadata["easyhoi"]
+    assert md["method"] == "cuboid"
+    check_canonical(mesh)
+    assert iou(silhouette(mesh, m.shape), m) > 0.95
+    he = np.sort(md["shape"]["scores"]["cuboid"]["half_extents"])[::-1]
+    np.testing.assert_allclose(he / he[0], [1.0, 35 / 60, 20 / 60], atol=0.06)
+    assert md["shape"]["scores"]["cuboid"]["edge_evidence"] > 0.3
+
+
+def test_superquadric_recovers_a_rounded_square_outline():
+    m = np.zeros((220, 260), bool)
+    v, u = np.mgrid[0:220, 0:260] + 0.5
+    x, y = (u - 130) / 80, (v - 110) / 50
+    m[:] = np.abs(x) ** 3.5 + np.abs(y) ** 3.5 <= 1
+    wf = common.work_frame(m)
+    h = superquadric.fit(wf)
+    assert h.info["exponent"] == 3.5
+    assert h.iou > 0.97
+    depth = np.ptp(h.verts[:, 2]) * wf.scale
+    assert depth == pytest.approx(100, rel=0.06)  # c = b: round in depth
+
+
+def test_tube_recovers_a_banana():
+    m = np.zeros((200, 240), np.uint8)
+    cv2.ellipse(m, (120, 20), (90, 90), 0, 30, 150, 1, 18)
+    m = m.astype(bool)
+    mesh = SilhouetteReconstructor().reconstruct(None, m)
+    assert mesh.metadata["easyhoi"]["method"] == "tube"
+    check_canonical(mesh)
+    assert iou(silhouette(mesh, m.shape), m) > 0.9
+    assert extents_px(mesh)[2] == pytest.approx(19, rel=0.15)  # round: depth = width
+
+
+def phone_with_hand(thickness_m=0.01, s=1000.0):
+    """A 20 x 10 cm phone face-on at ``s`` px/m, pinched by 3 keypoints in front and 3 behind.
+
+    Returns the phone's mask, the visible hand mask, (21, 2) pixel and (21, 3) metric keypoints.
+    """
+    H, W = 240, 320
+    origin = np.array([130.0, 120.0])  # pixel of the metric origin (weak perspective)
+    rng = np.random.default_rng(0)
+    k3 = np.zeros((21, 3))
+    k3[:, 0] = rng.uniform(-0.125, -0.105, 21)  # most of the hand left of the phone
+    k3[:, 1] = rng.uniform(-0.03, 0.03, 21)
+    k3[:, 2] = rng.uniform(-0.03, 0.03, 21)
+    front, behind = [2, 3, 4], [8, 12, 16]
+    k3[front, :2] = [[-0.07, -0.015], [-0.07, 0.005], [-0.06, 0.02]]
+    k3[behind, :2] = [[-0.07, -0.03], [-0.05, 0.01], [-0.04, 0.03]]
+    k3[front, 2] = -thickness_m / 2 - PAD_M
+    k3[behind, 2] = thickness_m / 2 + PAD_M
+    k2 = k3[:, :2] * s + origin
+    m = np.zeros((H, W), np.uint8)
+    p0 = np.round(np.array([-0.09, -0.05]) * s + origin).astype(int)
+    p1 = np.round(np.array([0.11, 0.05]) * s + origin).astype(int) - 1
+    cv2.rectangle(m, tuple(int(x) for x in p0), tuple(int(x) for x in p1), 1, -1)
+    hand = np.zeros((H, W), np.uint8)
+    for i in range(21):
+        if i not in behind:
+            cv2.circle(hand, tuple(int(x) for x in k2[i]), 7, 1, -1)
+    hand = hand.astype(bool)
+    for i in behind:  # the phone hides the fingers behind it
+        r, c = int(k2[i, 1]), int(k2[i, 0])
+        hand[r - 8 : r + 9, c - 8 : c + 9] = False
+    return m.astype(bool), hand, k2, k3 - k3.mean(0)
+
+
+def test_hand_cues_scale_and_thickness():
+    m, hand, k2, k3 = phone_with_hand(0.012, s=800.0)
+    c = hand_cues(k2, k3, m, hand)
+    assert c.px_per_m == pytest.approx(800.0, rel=1e-9)
+    assert set(c.front) == {2, 3, 4} and set(c.behind) == {8, 12, 16}
+    assert c.depth_m == pytest.approx(0.012, abs=1e-9)
+    assert c.confidence == 1.0
+    one_sided = hand_cues(k2, k3, m, np.ones_like(m))
+    assert one_sided.depth_m is None and one_sided.confidence == 0.0
+    assert hand_cues(k2[:5], k3, m, hand) is None
+    # a keypoint near the rim (less than 0.3 inscribed radii inside) does not count
+    k2_rim = k2.copy()
+    k2_rim[2] = [m.nonzero()[1].min() + 3, 120.0]
+    assert 2 not in hand_cues(k2_rim, k3, m, hand).front
+
+
+def test_slab_from_a_flat_grip_with_metric_size():
+    m, hand, k2, k3 = phone_with_hand(0.01, s=1000.0)
+    mesh = SilhouetteReconstructor().reconstruct(
+        None, m, visible_mask=m & ~hand, hand_mask=hand, hand_keypoints2d=k2,
+        hand_keypoints3d=k3,
+    )  # fmt: skip
+    md = mesh.metadata["easyhoi"]
+    assert md["method"] == "slab"
+    check_canonical(mesh)
+    assert iou(silhouette(mesh, m.shape), m) > 0.95
+    size_m = mesh.extents * md["meters_per_unit"]
+    np.testing.assert_allclose(size_m, [0.2, 0.1, 0.01], rtol=0.15)
+    # the same outline without the grip is round (a cylinder), 10 cm deep
+    plain = SilhouetteReconstructor().reconstruct(None, m)
+    assert extents_px(plain)[2] > 90
+
+
+def test_deterministic_with_cues():
+    m, hand, k2, k3 = phone_with_hand()
+    kw = dict(hand_mask=hand, hand_keypoints2d=k2, hand_keypoints3d=k3)
+    a = SilhouetteReconstructor().reconstruct(None, m, **kw)
+    b = SilhouetteReconstructor().reconstruct(None, m, **kw)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    assert a.metadata["easyhoi"]["shape"] == b.metadata["easyhoi"]["shape"]
+
+
+def test_front_relief_chooses_between_families():
+    """A dish-shaped front (centre farther than the rim) is not a cylinder's bulge."""
+    from tests.test_perception_objects import rect
+
+    m = rect()
+    v, u = np.mgrid[0:200, 0:240] + 0.5
+    bulge = -np.sqrt(np.clip(40.0**2 - (v - 100) ** 2, 0, None))  # depth: the axis is closest
+    plain = SilhouetteReconstructor().reconstruct(None, m)
+    assert plain.metadata["easyhoi"]["method"] == "revolution"
+    from easyhoi.perception.objects import shape_mesh
+
+    same = shape_mesh(m, None, front=bulge)
+    scores = same.metadata["easyhoi"]["shape"]["scores"]
+    assert same.metadata["easyhoi"]["method"] == "revolution"
+    assert scores["revolution"]["relief_agreement"] > 0.9
+    dish = shape_mesh(m, None, front=-bulge)
+    scores = dish.metadata["easyhoi"]["shape"]["scores"]
+    assert scores["revolution"]["relief_agreement"] < -0.9
+    assert dish.metadata["easyhoi"]["method"] != "revolution"
+
+
+def test_depth_adapter_uses_the_hypotheses(tmp_path):
+    tf = pytest.importorskip("transformers")
+    import torch
+
+    from easyhoi.perception.adapters.depth import DepthObjectReconstructor
+
+    cfg = tf.DPTConfig(
+        hidden_size=32, num_hidden_layers=4, num_attention_heads=2, intermediate_size=37,
+        image_size=32, patch_size=8, backbone_out_indices=[0, 1, 2, 3],
+        neck_hidden_sizes=[8, 16, 16, 32], fusion_hidden_size=16,
+        reassemble_factors=[4, 2, 1, 0.5],
+    )  # fmt: skip
+    torch.manual_seed(0)
+    tf.DPTForDepthEstimation(cfg).save_pretrained(tmp_path)
+    proc = tf.DPTImageProcessor(size={"height": 32, "width": 32}, keep_aspect_ratio=False)
+    proc.save_pretrained(tmp_path)
+    m, hand, k2, k3 = phone_with_hand(0.01, s=1000.0)
+    img = np.random.default_rng(0).integers(0, 255, (*m.shape, 3), dtype=np.uint8)
+    rec = DepthObjectReconstructor(model_dir=tmp_path)
+    mesh = rec.reconstruct(img, m, visible_mask=m & ~hand, hand_mask=hand,
+                           hand_keypoints2d=k2, hand_keypoints3d=k3)  # fmt: skip
+    md = mesh.metadata["easyhoi"]
+    assert mesh.is_watertight and mesh.volume > 0
+    assert md["method"] == "depth"
+    assert all("relief_agreement" in s for s in md["shape"]["scores"].values())
+    # the random model's relief is noise: the grip still makes it a thin slab of 20 x 10 cm
+    assert md["shape"]["shape"] == "slab"
+    np.testing.assert_allclose(mesh.extents * md["meters_per_unit"], [0.2, 0.1, 0.01], rtol=0.15)
+
+
+def test_hand_inputs_from_a_fitted_hand():
+    from easyhoi.hand import load_hand_model
+    from easyhoi.perception.base import HandDetection
+    from easyhoi.perception.objects import hand_inputs
+    from easyhoi.structures import Camera, HandParams
+
+    model = load_hand_model("open")
+    params = HandParams.zeros()  # the hand at the world origin, the camera 0.5 m behind it
+    cam = Camera.from_focal(500.0, 320, 240, t=[0.0, 0.0, 0.5])
+    det = HandDetection(np.zeros((21, 2)), None, "right", 1.0, params=params, camera=cam)
+    m = np.zeros((240, 320), bool)
+    kw = hand_inputs(SilhouetteReconstructor(), det, model, m, m)
+    assert kw["hand_keypoints2d"].shape == (21, 2) and kw["hand_keypoints3d"].shape == (21, 3)
+    # the 2D keypoints are the projection of the 3D ones (camera frame)
+    k3 = kw["hand_keypoints3d"]
+    proj = 500.0 * k3[:, :2] / k3[:, 2:] + [160.0, 120.0]
+    np.testing.assert_allclose(kw["hand_keypoints2d"], proj, atol=1e-3)
+
+    class TwoArgs:
+        def reconstruct(self, image, mask):
+            return None
+
+    assert hand_inputs(TwoArgs(), det, model, m, m) == {}
