@@ -96,7 +96,20 @@ def candidate_cues(
     codes: np.ndarray,
     grad: np.ndarray,
 ) -> dict[str, float]:
-    """Cues of one candidate mask ``m`` for the click ``p``; ``window`` the GrabCut window."""
+    """Cues of one candidate mask for a click.
+
+    Args:
+        m (np.ndarray): (h, w) bool candidate mask.
+        p (np.ndarray): (2,) click (u, v) in crop pixels.
+        window (np.ndarray | None): (h, w) bool GrabCut window (None for a proposal).
+        scene (ho.Scene): The hand, its keypoints and colour model in the crop.
+        exclude (np.ndarray): (h, w) bool pixels left out of the outline cues (the hands).
+        codes (np.ndarray): (h, w) int colour bins (:func:`ho.colour_codes`).
+        grad (np.ndarray): (h, w) float gradient magnitude of the lightness.
+
+    Returns:
+        dict[str, float]: contrast, edge, solidity, depth, window, skin and area (x hand area).
+    """
     L = scene.palm
     h, w = m.shape
     dt = cv2.distanceTransform(np.pad(m, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
@@ -128,7 +141,19 @@ def click_candidates(
     iterations: int,
     seed: int,
 ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(mask, window) GrabCut candidates grown from the click ``p`` (u, v) in crop pixels."""
+    """GrabCut candidates grown from one click, one per window and start.
+
+    Args:
+        img (np.ndarray): (h, w, 3) uint8 RGB working crop.
+        scene (ho.Scene): The hand, its keypoints and colour model in the crop.
+        p (np.ndarray): (2,) click (u, v) in crop pixels.
+        forbidden (np.ndarray): (h, w) bool hand and other-hand pixels.
+        iterations (int): GrabCut iterations.
+        seed (int): Seed of OpenCV's RNG.
+
+    Returns:
+        list[tuple[np.ndarray, np.ndarray]]: (mask, window) pairs of (h, w) bool arrays.
+    """
     h, w = img.shape[:2]
     L = scene.palm
     sure = _disk((h, w), p, max(1.5, SURE * L)) & ~scene.other_hands
@@ -181,9 +206,22 @@ def click_object(
     iterations: int,
     seed: int,
 ) -> tuple[np.ndarray, list[tuple[float, dict]]]:
-    """The object mask from one or more clicks (crop pixels, (N, 2) u, v), and the (score, cues)
-    of every candidate tried. ``fallback``: masks from the region proposals containing the
-    clicks, scored with the GrabCut candidates."""
+    """The object mask from one or more clicks.
+
+    Args:
+        img (np.ndarray): (h, w, 3) uint8 RGB working crop.
+        scene (ho.Scene): The hand, its keypoints and colour model in the crop.
+        points (np.ndarray): (N, 2) clicks (u, v) in crop pixels; the first one is grown, each
+            further one adds its own best region.
+        fallback (list[np.ndarray]): (h, w) bool masks from the region proposals containing the
+            clicks, scored with the GrabCut candidates.
+        iterations (int): GrabCut iterations.
+        seed (int): Seed of OpenCV's RNG.
+
+    Returns:
+        tuple[np.ndarray, list[tuple[float, dict]]]: The (h, w) bool object mask and the
+        (score, cues) of every candidate tried for the first click.
+    """
     h, w = img.shape[:2]
     pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
     forbidden = scene.hand | scene.other_hands

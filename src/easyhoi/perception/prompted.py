@@ -177,10 +177,23 @@ def clicked_object(
     iterations: int,
     seed: int,
 ) -> tuple[np.ndarray, ho.Hypotheses, int | None, Proposals | None]:
-    """(object mask, hypotheses, index of the chosen one, proposals or None) for object points
-    alone: GrabCut grown from the points (:func:`easyhoi.perception.click.click_object`); the
-    region proposals (``make_proposals``, costly) only when GrabCut collapses to the points.
-    The hypotheses hold the output mask alone when no proposals were computed."""
+    """The object from object points alone.
+
+    GrabCut grown from the points (:func:`easyhoi.perception.click.click_object`); the region
+    proposals (costly) are made only when GrabCut collapses to the points.
+
+    Args:
+        img (np.ndarray): (h, w, 3) uint8 RGB working crop.
+        scene (ho.Scene): The hand, its keypoints and colour model in the crop.
+        points (np.ndarray): (N, 2) object points (u, v) in crop pixels.
+        make_proposals (Callable[[], Proposals]): Makes the region proposals of the crop.
+        iterations (int): GrabCut iterations.
+        seed (int): Seed of OpenCV's RNG.
+
+    Returns:
+        tuple: (h, w) bool object mask, the hypotheses (the output mask alone when no proposals
+        were made), the index of the chosen one, and the proposals or None.
+    """
     obj, _ = click_object(img, scene, points, [], iterations, seed)
     if not collapsed(obj, scene):
         return obj, mask_hypothesis(obj, scene), 0, None
