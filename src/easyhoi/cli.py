@@ -395,29 +395,12 @@ def _check_reconstruct_early(args) -> None:
 
 
 def _check_photo(path: Path) -> None:
-    """Refuse a photo that is missing or not an image before torch and the models load.
+    """Refuse a photo that is missing, not an image or over the size limits before torch and
+    the models load (:func:`easyhoi.limits.check_image_header`: only the header is read; a file
+    that is an image but corrupt further in still fails, with a named error, when decoded)."""
+    from easyhoi.limits import check_image_header
 
-    Only the file's header is read (the photo is decoded once, later); a file that is an image
-    but corrupt further in still fails, with the same error, when it is decoded.
-    """
-    from PIL import Image, UnidentifiedImageError
-
-    if not path.exists():
-        raise InvalidInputError(f"image file not found: {path}")
-    if not path.is_file():
-        raise InvalidInputError(f"image path is not a file: {path}")
-    if path.stat().st_size == 0:
-        raise InvalidInputError(f"image file is empty (0 bytes): {path}")
-    try:
-        with Image.open(path):
-            pass
-    except UnidentifiedImageError:
-        raise InvalidInputError(
-            f"cannot read {path}: not an image in a supported format (JPEG, PNG, WebP, BMP, "
-            "TIFF...)"
-        ) from None
-    except OSError as exc:
-        raise InvalidInputError(f"cannot read {path}: {exc}") from None
+    check_image_header(path)
 
 
 def _provided_from_args(args):

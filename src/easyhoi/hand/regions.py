@@ -55,13 +55,13 @@ def _perp(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
 def rest_geometry(model: HandModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Rest vertices (V, 3), faces (F, 3), skin weights (V, 16) and joints (16, 3) as float64."""
     with torch.no_grad():
-        betas = torch.zeros(1, 10, dtype=torch.float64)
+        betas = torch.zeros(1, 10, dtype=torch.float64, device=model.faces.device)
         v, j = model.shaped(betas)
     return (
-        v[0].double().numpy(),
+        v[0].double().cpu().numpy(),
         model.faces.cpu().numpy().astype(np.int64),
         model.skin_weights.detach().double().cpu().numpy(),
-        j[0].double().numpy(),
+        j[0].double().cpu().numpy(),
     )
 
 

@@ -86,10 +86,10 @@ class Adam:
                 state = self.state.get(p)
                 if state is None:
                     # the step counter is a float tensor like torch's (its rounding is part of
-                    # the arithmetic)
+                    # the arithmetic), kept on the CPU as torch keeps it (it is read every step)
                     dtype = torch.float64 if torch.get_default_dtype() == torch.float64 else None
                     state = {
-                        "step": torch.tensor(0.0, dtype=dtype or torch.float32),
+                        "step": torch.tensor(0.0, dtype=dtype or torch.float32, device="cpu"),
                         "exp_avg": torch.zeros_like(p, memory_format=torch.preserve_format),
                         "exp_avg_sq": torch.zeros_like(p, memory_format=torch.preserve_format),
                     }

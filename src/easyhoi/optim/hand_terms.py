@@ -69,15 +69,17 @@ def prior_tables(dtype=torch.float64) -> dict:
     """Per-joint (15 joints, MANO order 1..15) tensors of :func:`pose_prior_loss`: ``lo``, ``hi``
     (flexion limits), ``tol`` (non-flexion tolerance), and the (middle, distal) joint index
     pairs of the coupled fingers (0-based rows of the (15, 3) articulation)."""
-    lo, hi, tol = torch.zeros(15, dtype=dtype), torch.zeros(15, dtype=dtype), torch.zeros(15)
-    tol = tol.to(dtype)
+    # built on the CPU (filled element by element); callers move them to the run's device
+    lo, hi, tol = (torch.zeros(15, dtype=dtype, device="cpu") for _ in range(3))
     for digit, joints in DIGIT_JOINTS.items():
         kind = "thumb" if digit == "thumb" else "finger"
         for role, j in enumerate(joints):
             lo[j - 1], hi[j - 1] = FLEXION_LIMITS[kind][role]
             hinge = role == 2 or (kind == "finger" and role == 1)
             tol[j - 1] = HINGE_TOLERANCE if hinge else ABDUCTION_TOLERANCE[kind]
-    pairs = torch.tensor([[DIGIT_JOINTS[d][1] - 1, DIGIT_JOINTS[d][2] - 1] for d in _FINGERS])
+    pairs = torch.tensor(
+        [[DIGIT_JOINTS[d][1] - 1, DIGIT_JOINTS[d][2] - 1] for d in _FINGERS], device="cpu"
+    )
     return {"lo": lo, "hi": hi, "tol": tol, "pairs": pairs}
 
 
