@@ -28,7 +28,7 @@ def _fake_pipeline(monkeypatch) -> dict:
     def reconstruct_photo(image, folder, settings, seed=None, **kw):
         img = load_image(image)
         seen[str(image)] = (Path(folder), seed, settings.hand_model.name)
-        Path(folder).mkdir(parents=True)
+        Path(folder).mkdir(parents=True, exist_ok=True)
         doc = {"image": str(image), "mean": float(img.rgb.mean())}
         (Path(folder) / "result.json").write_text(json.dumps(doc))
         return SimpleNamespace(
@@ -84,3 +84,18 @@ def test_a_failing_photo_among_several_exits_8(tmp_path, monkeypatch, capsys):
     assert records["a.png"]["status"] == "ok"
     assert (records["b.png"]["status"], records["b.png"]["exit_code"]) == ("failed", 2)
     assert "b.png: InvalidInputError" in capsys.readouterr().err
+
+
+def test_an_existing_result_is_refused_unless_overwrite(tmp_path, monkeypatch, capsys):
+    _fake_pipeline(monkeypatch)
+    a = _photo(tmp_path / "x.png", 10)
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(a), "--out", str(out), "-q"]) == 0
+    first = (out / "x" / "result.json").read_text()
+    _photo(a, 99)  # the photo changes; its result folder is there already
+    assert main(["reconstruct", str(a), "--out", str(out), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "already exists; pass --overwrite" in err and "Traceback" not in err
+    assert (out / "x" / "result.json").read_text() == first  # untouched
+    assert main(["reconstruct", str(a), "--out", str(out), "-q", "--overwrite"]) == 0
+    assert json.loads((out / "x" / "result.json").read_text())["mean"] == 99

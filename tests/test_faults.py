@@ -526,7 +526,9 @@ def test_reconstruct_replaces_a_link_in_out_without_touching_its_target(tmp_path
     (elsewhere / "precious").write_text("keep")
     out.mkdir()
     os.symlink(elsewhere, out / photo.stem)
-    assert main(["reconstruct", str(photo), "--out", str(out), "-q"]) == 0
+    assert main(["reconstruct", str(photo), "--out", str(out), "-q"]) == 2  # exists: refused
+    assert (out / photo.stem).is_symlink()
+    assert main(["reconstruct", str(photo), "--out", str(out), "-q", "--overwrite"]) == 0
     assert not (out / photo.stem).is_symlink() and (out / photo.stem / "r.json").is_file()
     assert sorted(p.name for p in elsewhere.iterdir()) == ["precious"]
     assert sorted(p.name for p in out.iterdir()) == [photo.stem]

@@ -135,6 +135,7 @@ def cmd_reconstruct(args) -> int:
         return _run_batch(args, [Path(p) for p in args.images], None, run)
     image = Path(args.images[0])
     folder = Path(args.out) / image.stem
+    _check_no_result(folder, args)
     with _Progress(args, image.name) as bar:
         rec = reconstruct_photo(
             image, folder, run, provided=provided, progress=bar.update, say=bar.step,
@@ -392,6 +393,15 @@ def _check_reconstruct_early(args) -> None:
     _check_out_dir(Path(args.out))
     if len(args.images) == 1:
         _check_photo(Path(args.images[0]))
+        _check_no_result(Path(args.out) / Path(args.images[0]).stem, args)
+
+
+def _check_no_result(folder: Path, args) -> None:
+    """Refuse to replace an existing result folder unless ``--overwrite`` was given."""
+    if folder.exists() and not getattr(args, "overwrite", False):
+        raise InvalidInputError(
+            f"{folder} already exists; pass --overwrite to replace it (nothing was changed)"
+        )
 
 
 def _check_photo(path: Path) -> None:
@@ -591,6 +601,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hand-point", metavar="X,Y", help="a pixel on the hand holding the object")
     p.add_argument("--strict", action="store_true",
                    help="exit 9, writing nothing, when a mask has low confidence")  # fmt: skip
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing result folder (default: refuse, exit 2)")  # fmt: skip
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
     _add_picture_options(p)
