@@ -187,21 +187,11 @@ def test_front_relief_chooses_between_families():
 
 
 def test_depth_adapter_uses_the_hypotheses(tmp_path):
-    tf = pytest.importorskip("transformers")
-    import torch
-
+    pytest.importorskip("transformers")
     from easyhoi.perception.adapters.depth import DepthObjectReconstructor
+    from easyhoi.testing.tiny_models import write_tiny_depth
 
-    cfg = tf.DPTConfig(
-        hidden_size=32, num_hidden_layers=4, num_attention_heads=2, intermediate_size=37,
-        image_size=32, patch_size=8, backbone_out_indices=[0, 1, 2, 3],
-        neck_hidden_sizes=[8, 16, 16, 32], fusion_hidden_size=16,
-        reassemble_factors=[4, 2, 1, 0.5],
-    )  # fmt: skip
-    torch.manual_seed(0)
-    tf.DPTForDepthEstimation(cfg).save_pretrained(tmp_path)
-    proc = tf.DPTImageProcessor(size={"height": 32, "width": 32}, keep_aspect_ratio=False)
-    proc.save_pretrained(tmp_path)
+    write_tiny_depth(tmp_path)
     m, hand, k2, k3 = phone_with_hand(0.01, s=1000.0)
     img = np.random.default_rng(0).integers(0, 255, (*m.shape, 3), dtype=np.uint8)
     rec = DepthObjectReconstructor(model_dir=tmp_path)
