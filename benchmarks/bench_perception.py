@@ -25,7 +25,7 @@ Usage::
 
     python benchmarks/bench_perception.py                       # all photos with references
     python benchmarks/bench_perception.py --split check --no-point
-    python benchmarks/bench_perception.py --only mow- --sheet /tmp/sheet.png
+    python benchmarks/bench_perception.py --only mow-           # photos whose name has mow-
 
 Results: a Markdown table on stdout and ``benchmarks/results/bench_perception.json``.
 """
