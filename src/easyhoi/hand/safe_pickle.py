@@ -118,7 +118,7 @@ def _plain_shape(shape) -> tuple[int, ...]:
 
 
 def _select(a: np.ndarray, state: dict) -> np.ndarray:
-    idxs = np.asarray(to_plain(state.get("idxs")))
+    idxs = np.asarray(_plain(state.get("idxs"), 0))
     if idxs.dtype.kind not in "iu":
         raise UnsafeFileError("malformed chumpy Select: its indices are not integers")
     out = a.ravel()[idxs.ravel()]
@@ -140,7 +140,7 @@ def _chumpy_value(obj: ChumpyStandIn, depth: int) -> np.ndarray:
     for name in operands:
         if name not in state:
             raise UnsafeFileError(f"chumpy {obj.chumpy_name} object lacks its operand {name!r}")
-        value = to_plain(state[name], depth + 1)
+        value = _plain(state[name], depth + 1)
         ops[name] = value if sp.issparse(value) else np.asarray(value)
     return np.asarray(fn(ops, state))
 
@@ -220,13 +220,15 @@ def check_expansion(obj, limit: int = MAX_EXPANDED_VALUES) -> int:
     return sizes.get(id(obj), 1)
 
 
-def to_plain(obj, depth: int = 0):
-    """Replace every stand-in inside ``obj`` (recursively) by a numpy array / sparse matrix.
+def to_plain(obj):
+    """Replace every stand-in inside ``obj`` (recursively) by a numpy array / sparse matrix,
+    after bounding the work (:func:`check_expansion`)."""
+    check_expansion(obj)
+    return _plain(obj, 0)
 
-    The top-level call first bounds the work (:func:`check_expansion`).
-    """
-    if depth == 0:
-        check_expansion(obj)
+
+def _plain(obj, depth: int):
+    """:func:`to_plain` on content whose expansion is already checked."""
     if depth > 64:
         raise UnsafeFileError("chumpy expression nested too deeply")
     if isinstance(obj, ChumpyStandIn):
@@ -234,9 +236,9 @@ def to_plain(obj, depth: int = 0):
     if isinstance(obj, _SparseStandIn):
         return _sparse_value(obj)
     if isinstance(obj, dict):
-        return {k: to_plain(v, depth + 1) for k, v in obj.items()}
+        return {k: _plain(v, depth + 1) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
-        return type(obj)(to_plain(v, depth + 1) for v in obj)
+        return type(obj)(_plain(v, depth + 1) for v in obj)
     return obj
 
 
@@ -391,4 +393,4 @@ def load_mano_pickle(path: str | Path) -> dict[str, Any]:
             f"{path} does not hold a dictionary (got {type(data).__name__}); is it a MANO file?"
         )
     check_expansion(data)
-    return {str(k): to_plain(v) for k, v in data.items()}
+    return {str(k): _plain(v, 0) for k, v in data.items()}
