@@ -134,8 +134,7 @@ def cmd_reconstruct(args) -> int:
             )
         return _run_batch(args, [Path(p) for p in args.images], None, run)
     image = Path(args.images[0])
-    folder = Path(args.out) / image.stem
-    _check_no_result(folder, args)
+    folder = Path(args.out) / image.stem  # an existing one was refused by the early check
     with _Progress(args, image.name) as bar:
         rec = reconstruct_photo(
             image, folder, run, provided=provided, progress=bar.update, say=bar.step,
