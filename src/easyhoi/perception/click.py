@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from easyhoi.perception import held_object as ho
+from easyhoi.perception.proposals import Proposals, propose
 from easyhoi.perception.skin import SKIN_D2, draw_skeleton, fill_holes, grabcut
 
 #: Working windows: half-sides in palm lengths. From a small object next to the fingers to one
@@ -31,6 +32,11 @@ WINDOWS = (0.6, 1.0, 1.6, 2.5)
 SEED_SHARES = (0.35, 1.5)
 #: Radius of the sure-object disk around the click, in palm lengths.
 SURE = 0.06
+#: Felzenszwalb scale of the finer click proposals at a 256 px crop (the automatic path's
+#: is 150): a finer segmentation keeps apart an object and a background of similar colour.
+FINE_SCALE = 75.0
+#: Smallest piece joined across the hand, as a share of the clicked piece.
+JOIN_MIN = 0.05
 #: Score weights of :func:`click_score`.
 CLICK_WEIGHTS = {
     "contrast": 3.0,
@@ -122,7 +128,15 @@ def candidate_cues(
         frame[[0, -1], :], frame[:, [0, -1]] = True, True
         ring &= ~frame  # the photo's edge is not the window's: the object may leave the photo
         win = float((ring & m).sum()) / max(1.0, float(ring.sum()))
+    near = exclude & ~scene.other_hands  # the clicked hand and a thin band around it
+    frame = np.zeros((h, w), bool)
+    frame[[0, -1], :], frame[:, [0, -1]] = True, True
+    hand_dist = cv2.distanceTransform((~scene.hand).astype(np.uint8), cv2.DIST_L2, 5)
+    n = max(1.0, float(m.sum()))
     return {
+        "contact": min(2.0, float((m & near).sum()) / (3.0 * L)),
+        "far": float((m & (hand_dist > 2.0 * L)).sum()) / n,
+        "border": min(3.0, float((m & frame).sum()) / L),
         "contrast": ho.outline_contrast(m, exclude, codes, max(3, int(0.2 * L))),
         "edge": edge_strength(m, grad, exclude),
         "solidity": ho.solidity(m),
@@ -160,9 +174,13 @@ def click_candidates(
     # the hand mask may have absorbed part of the object (a skin-coloured or shadowed part
     # next to the fingers): only the cores of its visible bones and the other hands are sure
     # background, the rest of it is probable background
-    core = (draw_skeleton((h, w), scene.kp, 0.12 * L, palm=False) & scene.hand) | (
-        scene.other_hands
-    )
+    # an object in front of a finger covers its bone: only skin-coloured bone pixels are sure
+    # to be the hand
+    core = (
+        draw_skeleton((h, w), scene.kp, 0.12 * L, palm=False)
+        & scene.hand
+        & (scene.skin_d2 < SKIN_D2)
+    ) | scene.other_hands
     core &= ~sure
     out = []
     for k, share in [(k, sh) for k in WINDOWS for sh in SEED_SHARES]:
@@ -188,14 +206,68 @@ def click_candidates(
         m = fill_holes(_component_at(fg | sure, sure)) & ~core
         if m.sum() > sure.sum():
             out.append((m, window))
+            j = join_across_hand(fg & ~core, m, scene.hand, L)
+            if j is not None:
+                out.append((j, window))
     return out
 
 
-def collapsed(mask: np.ndarray, scene: ho.Scene) -> bool:
-    """Whether GrabCut kept little more than the sure disks around the clicks (it found no
-    colour model separating the object from its surroundings)."""
-    r = max(1.5, SURE * scene.palm)
-    return float(mask.sum()) < 4.0 * np.pi * r * r
+def join_across_hand(fg: np.ndarray, m: np.ndarray, hand: np.ndarray, L: float):
+    """``m`` joined with the other foreground pieces that, like ``m``, touch the hand: the
+    fingers wrapped around a held object hide a band of it, so its visible parts often lie on
+    both sides of them (None when there is no such piece)."""
+    k = max(3, int(0.1 * L)) | 1
+    band = cv2.dilate(hand.astype(np.uint8), np.ones((k, k), np.uint8)).astype(bool)
+    if not (m & band).any():
+        return None
+    n, cc, stats, _ = cv2.connectedComponentsWithStats((fg & ~m).astype(np.uint8), connectivity=8)
+    touch = np.unique(cc[band & (cc > 0)])
+    touch = [i for i in touch if stats[i, cv2.CC_STAT_AREA] >= JOIN_MIN * m.sum()]
+    if not touch:
+        return None
+    return fill_holes(m | np.isin(cc, touch))
+
+
+def click_proposals(
+    img: np.ndarray, scene: ho.Scene, p: np.ndarray, props: Proposals
+) -> list[np.ndarray]:
+    """Every region proposal containing the click, from ``props`` and from a finer
+    segmentation of the crop (Felzenszwalb scale :data:`FINE_SCALE`).
+
+    GrabCut grown from a click stops at the strongest colour change, which on a multi-coloured
+    object (a cup with a lid and a sleeve) is often inside it; the proposal hierarchy groups
+    such parts by adjacency and colour similarity, and the finer segmentation keeps apart an
+    object and a background of similar colour that the coarser one merges.
+
+    Args:
+        img (np.ndarray): (h, w, 3) uint8 RGB working crop.
+        scene (ho.Scene): The hand, its keypoints and colour model in the crop.
+        p (np.ndarray): (2,) click (u, v) in crop pixels.
+        props (Proposals): The crop's region proposals at the default scale.
+
+    Returns:
+        list[np.ndarray]: (h, w) bool masks (the sure disk at the click added, hands removed).
+    """
+    h, w = img.shape[:2]
+    L = scene.palm
+    forbidden = scene.hand | scene.other_hands
+    fine = propose(
+        img,
+        scene.lab,
+        forbidden,
+        FINE_SCALE * max(h, w) / 256.0,
+        max(8, int((0.12 * L) ** 2)),
+        max_size=10.0 * scene.hand_area,
+    )
+    sure = _disk((h, w), p, max(1.5, SURE * L)) & ~scene.other_hands
+    u, v = int(round(p[0])), int(round(p[1]))
+    out = []
+    for pr in (props, fine):
+        lab = int(pr.labels[v, u])
+        if lab < 0:
+            continue
+        out += [(pr.mask(r) | sure) & ~forbidden for r in pr.regions if lab in r]
+    return out
 
 
 def click_object(
