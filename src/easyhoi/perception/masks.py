@@ -27,7 +27,7 @@ from easyhoi.io.image import check_image
 from easyhoi.perception import held_object as ho
 from easyhoi.perception.base import HandDetection, Segmentation, register
 from easyhoi.perception.prompts import Prompts
-from easyhoi.perception.proposals import propose
+from easyhoi.perception.proposals import propose, propose_scales
 from easyhoi.perception.seg_confidence import hand_confidence, object_confidence
 from easyhoi.perception.skin import (  # noqa: F401  (re-exported: the masks' drawing helpers)
     BONES,
@@ -132,7 +132,11 @@ class ClassicalHOISegmenter:
         click_side: int = 384,
         refine_top: int = 1,
         seed: int = 0,
+        auto_scales: tuple[float, ...] = (100.0, 300.0, 600.0),
+        rank_top: int = 24,
     ):
+        self.auto_scales = tuple(float(v) for v in auto_scales)
+        self.rank_top = int(rank_top)
         self.refine_top = int(refine_top)
         self.click_side = int(click_side)
         self.crop_factor = float(crop_factor)
@@ -231,6 +235,16 @@ class ClassicalHOISegmenter:
                 max_size=4.0 * ho.AREA_RANGE[1] * scene.hand_area,
             )
 
+        def auto_proposals():
+            return propose_scales(
+                img,
+                lab,
+                excl,
+                self.auto_scales,
+                min_size,
+                max_size=4.0 * ho.AREA_RANGE[1] * scene.hand_area,
+            )
+
         props = None
         if clicks:
             obj, hyp, best, props = clicked_object(
@@ -249,8 +263,8 @@ class ClassicalHOISegmenter:
             )
             has_object = bool(obj.any())
         else:
-            props = proposals()
-            hyp = ho.rank(props, scene) if props.regions else None
+            props = auto_proposals()
+            hyp = ho.rank(props, scene, self.rank_top) if props.regions else None
             best, obj = None, np.zeros(shape, bool)
             if hyp is not None and np.isfinite(hyp.scores).any():
                 best, obj, hyp = self._refine_best(img, props, scene, hyp, excl)
