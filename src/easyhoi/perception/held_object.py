@@ -159,10 +159,13 @@ def _base_stats(props: Proposals, scene: Scene) -> dict[str, np.ndarray]:
         "far": segment_sums(lab_, hand_dist > 2.0 * L, n),
     }
     fd = finger_distances(shape, scene.kp)
-    ok = lab_ >= 0
     mins = np.full((5, n), np.inf)
-    for f in range(5):
-        np.minimum.at(mins[f], lab_[ok], fd[f][ok])
+    if n:
+        from scipy.ndimage import minimum
+
+        idx = np.arange(1, n + 1)
+        for f in range(5):
+            mins[f] = minimum(fd[f], lab_ + 1, idx)
     stats["finger_min"] = mins
     return stats
 
