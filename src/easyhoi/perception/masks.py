@@ -6,7 +6,7 @@ masks are mapped back to the full image at the end.
 
 1. Hand: this hand's colour model and GrabCut seeded by its skeleton (:mod:`.skin`).
 2. Proposals: Felzenszwalb segments outside the hands, grouped hierarchically into
-   hypotheses (:mod:`.proposals`).
+   hypotheses (:mod:`.proposals`); the automatic path pools the hierarchies of three scales.
 3. Held object: every hypothesis is scored by grasp cues (:mod:`.held_object`); the best one is
    refined by GrabCut seeded by it. With prompts, the hypotheses are those containing the
    object points / filling the box (:mod:`.prompted`).
@@ -140,6 +140,10 @@ class ClassicalHOISegmenter:
         refine_top (int): Number of best distinct hypotheses refined by GrabCut and scored again.
         iterations (int): GrabCut iterations.
         seed (int): Seed of OpenCV's RNG (GrabCut's GMM initialisation uses k-means).
+        auto_scales (tuple of float): Felzenszwalb scales whose hierarchies are pooled on the
+            automatic path (fine: small objects stay apart; coarse: textured objects stay whole).
+        rank_top (int): Hypotheses (best by the cheap cues) that get the cues needing the mask
+            drawn (contrast, solidity) before the final ranking.
     """
 
     def __init__(

@@ -10,6 +10,9 @@ crop, so an object made of several coloured parts (a can with a label, a bottle 
 appears as one hypothesis at some level of the hierarchy while the background next to it stays
 another.
 
+The automatic path pools the hierarchies of several Felzenszwalb scales on their common
+refinement (:func:`propose_scales`): the right granularity differs between photos and objects.
+
 Hypotheses are represented by the set of base segments they contain; per-segment statistics
 (summed by :func:`segment_sums`) give most cues of a hypothesis without drawing its mask.
 """
