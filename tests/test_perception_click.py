@@ -104,3 +104,33 @@ def test_click_proposals_contain_the_click_and_avoid_the_hand():
     masks = click_proposals(img, scene, np.array([195.0, 75.0]), props)
     assert masks and all(m[75, 195] and not (m & hand).any() for m in masks)
     assert max(iou(m, obj) for m in masks) > 0.9  # the whole cup is among them
+
+
+def test_the_hands_rim_is_left_out_unless_the_click_is_skin_coloured():
+    from easyhoi.perception import held_object as ho
+    from easyhoi.perception.click import RIM, hand_rim
+    from easyhoi.perception.skin import palm_length, skin_model
+
+    kp = det().keypoints2d
+    L = palm_length(kp)
+    img = canvas()
+    obj = (np.abs(XX - 195) < 25) & (np.abs(YY - 60) < 25)
+    img[obj] = (40, 60, 170)
+    img, drawn = finish(img)
+    # the hand mask misses a band of skin along the drawn hand's side
+    miss = drawn & (XX < XX[drawn].min() + 6)
+    hand = drawn & ~miss
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene = ho.Scene(lab, hand, kp, skin_model(lab, kp).d2(lab), hand & False)
+    rim = hand_rim(scene, np.array([195.0, 60.0]))  # a click on the blue object
+    assert rim[miss].mean() > 0.9  # the unmasked skin next to the hand is the hand's rim
+    assert not (rim & obj).any()  # the object is not skin
+    dist = cv2.distanceTransform((~hand).astype(np.uint8), cv2.DIST_L2, 5)
+    assert not (rim & (dist >= RIM * L)).any()
+    # a click on skin colour (a beige object) keeps everything
+    beige = tuple(int(c) for c in img[hand][0])
+    img2 = img.copy()
+    img2[obj] = beige
+    lab2 = cv2.cvtColor(img2, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene2 = ho.Scene(lab2, hand, kp, skin_model(lab2, kp).d2(lab2), hand & False)
+    assert not hand_rim(scene2, np.array([195.0, 60.0])).any()

@@ -43,6 +43,9 @@ SURE = 0.06
 #: Felzenszwalb scale of the finer click proposals at a 256 px crop (the automatic path's
 #: is 150): a finer segmentation keeps apart an object and a background of similar colour.
 FINE_SCALE = 75.0
+#: Width of the hand's rim left out of the click proposals, in palm lengths: about a finger
+#: and a half (a finger is about 0.2 L wide).
+RIM = 0.3
 #: Smallest piece joined across the hand, as a share of the clicked piece.
 JOIN_MIN = 0.05
 #: Score weights of :func:`click_score`.
@@ -261,14 +264,36 @@ def click_proposals(
         max_size=10.0 * scene.hand_area,
     )
     sure = _disk((h, w), p, max(1.5, SURE * L)) & ~scene.other_hands
+    rim = hand_rim(scene, p)
     u, v = int(round(p[0])), int(round(p[1]))
     out = []
     for pr in (props, fine):
         lab = int(pr.labels[v, u])
         if lab < 0:
             continue
-        out += [(pr.mask(r) | sure) & ~forbidden for r in pr.regions if lab in r]
+        for r in pr.regions:
+            if lab in r:
+                m = (pr.mask(r) | sure) & ~forbidden & ~rim
+                out.append(_component_at(m | sure, sure))
     return out
+
+
+def hand_rim(scene: ho.Scene, p: np.ndarray) -> np.ndarray:
+    """(h, w) bool skin-coloured pixels within :data:`RIM` L of the hand mask, unless the click
+    itself is on something skin-coloured (then nothing).
+
+    The hand mask, grown from the skeleton, often misses the hand's rim (the sides of the
+    fingers, a palm the keypoints foreshorten), and a region proposal next to the hand then
+    takes it in; the rim is the hand's colour and touches it. A click on a skin-coloured object
+    (a beige cup) says that colour is the object's, so nothing is taken away then."""
+    h, w = scene.hand.shape
+    L = scene.palm
+    skin = scene.skin_d2 < SKIN_D2
+    at = _disk((h, w), p, max(2.0, 0.15 * L)) & ~scene.hand
+    if at.any() and float(skin[at].mean()) > 0.5:
+        return np.zeros((h, w), bool)
+    dist = cv2.distanceTransform((~scene.hand).astype(np.uint8), cv2.DIST_L2, 5)
+    return skin & (dist < RIM * L)
 
 
 def click_object(
