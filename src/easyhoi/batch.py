@@ -693,13 +693,15 @@ class ReconstructWorker:
     def __call__(self, task: Task) -> dict:
         """Reconstruct one photo into ``task.output``.
 
-        Returns timing, file count, and what the user must hear about perception:
+        Returns timing (``seconds`` of wall time, ``cpu_seconds`` of this process's CPU time,
+        first-use imports included), file count, and what the user must hear about perception:
         ``notes`` (the hand used is not the first detected) and ``warnings`` (low confidence).
         """
         from easyhoi.perception.feedback import hand_choice_note, low_confidence_lines
         from easyhoi.pipeline import reconstruct_photo
         from easyhoi.settings import RunSettings, resolve_run
 
+        cpu0 = time.process_time()
         if not isinstance(self.settings, RunSettings):
             self.settings = resolve_run(self.settings)
         prompts = self.prompts.get(task.key)
@@ -709,6 +711,7 @@ class ReconstructWorker:
         prompted = prompts is not None and prompts.has_object_prompt
         return {
             "seconds": round(float(rec.seconds), 3), "files": len(rec.files),
+            "cpu_seconds": round(time.process_time() - cpu0, 3),
             "notes": [note] if note else [],
             "warnings": low_confidence_lines(rec.perception, "batch", prompted),
         }  # fmt: skip
