@@ -44,10 +44,18 @@ def test_fit_width_is_an_area_average():
     assert np.abs(small - ref).max() <= 0.5 + 1e-9
     mask = np.zeros((4, 6), bool)
     mask[1, 2] = True
-    m = fit_width(mask, 6)
+    m = fit_width(mask, 10)  # narrower than the slot: kept as it is
     assert m.shape == (4, 6, 3) and m[1, 2].tolist() == [255] * 3 and m.sum() == 3 * 255
     with pytest.raises(InvalidInputError):
         fit_width(np.zeros((4, 6, 2), np.uint8), 3)
+
+
+def test_a_narrow_picture_is_centred_in_its_slot():
+    pic = np.full((8, 10, 3), 200, np.uint8)
+    pic[0, 0] = (1, 2, 3)
+    fig = compose_grid([Panel(pic)], 1, 30)
+    ((y, x),) = _find(fig, pic)
+    assert x == 10 + (30 - 10) // 2  # margin, then half the slot's spare width
 
 
 def test_same_bytes_every_time():

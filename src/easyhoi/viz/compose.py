@@ -51,7 +51,11 @@ def _font(size: int):
 
 
 def fit_width(image: np.ndarray, width: int) -> np.ndarray:
-    """``image`` as (h, ``width``, 3) uint8, aspect kept: area-averaged down, nearest up."""
+    """``image`` as (h, w, 3) uint8 at most ``width`` wide: area-averaged down, aspect kept.
+
+    A narrower picture keeps its size (enlarging adds no detail); a bool mask becomes white on
+    black.
+    """
     import cv2
 
     a = np.asarray(image)
@@ -62,11 +66,10 @@ def fit_width(image: np.ndarray, width: int) -> np.ndarray:
     if a.ndim != 3 or a.shape[2] != 3 or a.dtype != np.uint8:
         raise InvalidInputError(f"panel must be (H, W, 3) uint8 or (H, W) bool, got {a.shape}")
     H, W = a.shape[:2]
-    if W == width:
+    if W <= width:
         return a
     h = max(1, round(H * width / W))
-    interp = cv2.INTER_AREA if W > width else cv2.INTER_NEAREST
-    return cv2.resize(a, (int(width), h), interpolation=interp)
+    return cv2.resize(a, (int(width), h), interpolation=cv2.INTER_AREA)
 
 
 def _line_height(size: int) -> int:
@@ -91,7 +94,10 @@ def compose_grid(
     legend: Sequence[tuple[str, tuple[int, int, int]]] = (),
     background=(255, 255, 255),
 ) -> np.ndarray:
-    """Panels in rows of ``cols``, each ``panel_width`` pixels wide, titled, with a legend.
+    """Panels in rows of ``cols``, each in a slot ``panel_width`` pixels wide, with a legend.
+
+    Wider pictures are downscaled to the slot's width (:func:`fit_width`), narrower ones
+    centred in it.
 
     Every row is as tall as its tallest panel and its panel titles; the figure's title is
     centred above, the legend (a colour square and a label per entry) centred below.
@@ -124,9 +130,10 @@ def compose_grid(
             x = _MARGIN + k * (panel_width + _MARGIN)
             _centered_lines(draw, panels[i].title, x + panel_width / 2, y, PANEL_TITLE_PX)
             pic = pics[i]
-            canvas.paste(Image.fromarray(pic), (x, y + text_h))
             h, w = pic.shape[:2]
-            draw.rectangle((x - 1, y + text_h - 1, x + w, y + text_h + h), outline=_FRAME)
+            px = x + (panel_width - w) // 2  # a narrower picture is centred in its slot
+            canvas.paste(Image.fromarray(pic), (px, y + text_h))
+            draw.rectangle((px - 1, y + text_h - 1, px + w, y + text_h + h), outline=_FRAME)
         y += text_h + pic_h + _MARGIN
     if legend:
         _legend(draw, legend, W, y)
