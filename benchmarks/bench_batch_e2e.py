@@ -15,9 +15,10 @@ the first 6 ``ihoi-demo`` frames of ``shared/data/photos-dev``.
 Each worker records the CPU seconds of every photo in the manifest (``info.cpu_seconds``; the
 first photo of a worker process carries its imports); their sum is printed with the wall time.
 The machine's load average is printed before and after each run: on a shared machine the
-ratio depends on it (with ``n`` other busy processes on 2 cores, fair scheduling gives two
-workers ``2 (n + 1) / (n + 2)`` times the CPU of one: 2 when idle, 1.33 with one other busy
-process), so compare ratios measured at a load close to zero. Both runs must produce the same
+ratio depends on it, and on a kernel that schedules by session (``sched_autogroup_enabled``,
+the default of many distributions) all processes of the batch share one session's part of
+the CPU, so that with other sessions busy two workers get no more CPU than one. Compare
+ratios measured on an otherwise idle machine. Both runs must produce the same
 meshes (same seeds): the script compares ``hand.ply`` and ``object.ply`` byte for byte.
 
 Usage::
