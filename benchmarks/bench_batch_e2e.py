@@ -8,8 +8,8 @@ merit is photos per minute (photos / wall time); the ratio of the two runs is th
 the second worker.
 
 The photos are copied into a temporary folder (a batch refuses links that lead out of its
-folder). By default they are the 12 shared
-photos that reach a result: the 6 of ``shared/data/images`` where a held object is found and
+folder). By default they are 12 shared photos that reach a result: the 6 of
+``shared/data/images`` where perception found a held object when this script was written and
 the first 6 ``ihoi-demo`` frames of ``shared/data/photos-dev``.
 
 Each worker records the CPU seconds of every photo in the manifest (``info.cpu_seconds``; the
@@ -18,8 +18,8 @@ The machine's load average is printed before and after each run: on a shared mac
 ratio depends on it, and on a kernel that schedules by session (``sched_autogroup_enabled``,
 the default of many distributions) all processes of the batch share one session's part of
 the CPU, so that with other sessions busy two workers get no more CPU than one. Compare
-ratios measured on an otherwise idle machine. Both runs must produce the same
-meshes (same seeds): the script compares ``hand.ply`` and ``object.ply`` byte for byte.
+ratios measured on an otherwise idle machine. Both runs must produce the same meshes (same
+seeds): the script compares ``hand.ply`` and ``object.ply`` byte for byte.
 
 Usage::
 
