@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import io
-import math
 
 import numpy as np
 
@@ -96,74 +95,36 @@ def losses_png(result: HOIResult) -> bytes:
 
     Non-positive and non-finite values are left out of the log plot. Stages without a history
     (e.g. "initial") get no panel; they are listed under the title. ``"total"`` is drawn thick
-    and black.
+    and black. The panels are drawn with Pillow (:mod:`easyhoi.viz.chart`).
     """
+    from easyhoi.viz.chart import Series, log_chart
+    from easyhoi.viz.compose import Panel, compose_grid
+
     if not isinstance(result, HOIResult):
         raise InvalidInputError(f"expected an HOIResult, got {type(result).__name__}")
     stages = [s for s in result.stages if stage_loss_series(s.losses)[1]]
     skipped = [s.name for s in result.stages if not any(s is t for t in stages)]
-    n = max(1, len(stages))
-    cols = min(n, 4)
-    rows = math.ceil(n / cols)
-    fig = new_figure(4.2 * cols, 3.3 * rows + 0.4)
     title = "Loss curves per stage (log scale)"
     if skipped:
         title += f"\nno loss history: {', '.join(skipped)}"
-    fig.suptitle(title, fontsize=11)
-    if not stages:
-        ax = fig.add_subplot(1, 1, 1)
-        ax.axis("off")
-        ax.text(0.5, 0.5, "no loss history recorded", ha="center", va="center")
-        return figure_png(fig)
-    for i, st in enumerate(stages):
-        ax = fig.add_subplot(rows, cols, i + 1)
+    panels = []
+    for st in stages:
         # no seconds in a picture: the pictures are the same bytes at every run of a seed (the
         # report's stage table gives the times)
-        title = f"{st.name}: {st.iterations} it"
+        name = f"{st.name}: {st.iterations} it"
         if st.stop_reason:
-            title += f"\nstop: {st.stop_reason}"
-        # an explicit title height: automatic placement measures every tick label first
-        ax.set_title(title, fontsize=9, y=1.0, pad=4)
+            name += f"\nstop: {st.stop_reason}"
         x, series = stage_loss_series(st.losses)
-        drawn, lo, hi = 0, np.inf, 0.0
-        for k, y in series.items():
-            ok = np.isfinite(y) & (y > 0)
-            if not ok.any():
-                continue
-            lo, hi = min(lo, float(y[ok].min())), max(hi, float(y[ok].max()))
-            style = dict(color="black", lw=2.2, zorder=3) if k == "total" else dict(lw=1.3)
-            ax.plot(x[ok], y[ok], label=k, marker="." if ok.sum() < 12 else None, **style)
-            drawn += 1
-        if drawn:
-            ax.set_yscale("log")
-            _log_ticks(ax, lo, hi)
-            ax.legend(fontsize=7, loc="best")
-            ax.grid(True, alpha=0.3)
-        else:
-            ax.text(0.5, 0.5, "no loss history", ha="center", va="center", transform=ax.transAxes)
-            ax.set_yticks([])
-        ax.set_xlabel("iteration", fontsize=8)
-        ax.tick_params(which="both", labelsize=7)
-    top = 1.0 if skipped else 0.8  # the suptitle's lines and two lines of panel title
-    fixed_margins(fig, left=0.6, right=0.2, top=top, bottom=0.45, wspace=0.55, hspace=0.95)
-    return figure_png(fig)
+        curves = {k: Series(x, y, thick=k == "total") for k, y in series.items()}
+        panels.append(Panel(log_chart(curves, _CHART_W, _CHART_H, name, "iteration")))
+    if not panels:
+        panels = [Panel(log_chart({}, _CHART_W, _CHART_H, empty_text="no loss history recorded"))]
+    cols = min(len(panels), 4)
+    return png_bytes(compose_grid(panels, cols, _CHART_W, title=title))
 
 
-def _log_ticks(ax, lo: float, hi: float) -> None:
-    """Major ticks only on a log axis: at 1, 2 and 5 times the powers of ten when the data
-    span less than 1.5 decades (so a narrow axis still has labels), at the powers of ten
-    otherwise. Minor ticks are left out: a log axis makes up to eight per decade, each a full
-    tick object to lay out, about a third of the figure's cost. Labels are plain numbers
-    (``0.01``, ``1e-05``): the default ``10^x`` labels go through mathtext, whose parser is
-    built on first use (0.2 s CPU).
-    """
-    from matplotlib.ticker import LogFormatter, LogLocator, NullLocator
-
-    narrow = hi / lo < 10**1.5
-    if narrow:
-        ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-    ax.yaxis.set_major_formatter(LogFormatter(labelOnlyBase=not narrow))
-    ax.yaxis.set_minor_locator(NullLocator())
+#: Size in pixels of one stage's panel in ``losses.png``.
+_CHART_W, _CHART_H = 420, 320
 
 
 def fixed_margins(fig, *, left, right, top, bottom, wspace, hspace) -> None:
