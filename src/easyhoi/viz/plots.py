@@ -1,4 +1,4 @@
-"""Figure helpers (PNG encoding without pyplot's global state) and the loss-curve plot."""
+"""PNG encoding, a matplotlib figure without pyplot's global state, and the loss curves."""
 
 from __future__ import annotations
 
@@ -12,15 +12,13 @@ from easyhoi.hoi import HOIResult
 __all__ = [
     "FIGURE_DPI",
     "PNG_COMPRESS_LEVEL",
-    "figure_png",
-    "fixed_margins",
     "losses_png",
     "new_figure",
     "png_bytes",
     "stage_loss_series",
 ]
 
-#: Pixels per inch of every figure (a panel of 3.6 inches is 360 pixels wide).
+#: Pixels per inch of the matplotlib figures (:func:`new_figure`).
 FIGURE_DPI = 100
 #: zlib level of every PNG written (0-9). Level 1 encodes the pictures several times faster
 #: than the default 6 for files about a third larger; the bytes are the same at every run.
@@ -47,14 +45,6 @@ def new_figure(width_in: float, height_in: float):
     fig = Figure(figsize=(width_in, height_in), dpi=FIGURE_DPI)
     FigureCanvasAgg(fig)
     return fig
-
-
-def figure_png(fig) -> bytes:
-    """PNG bytes of a Figure (deterministic: no timestamp metadata)."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=FIGURE_DPI, metadata={"Software": None},
-                pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})  # fmt: skip
-    return buf.getvalue()
 
 
 def stage_loss_series(losses: list[dict]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -125,19 +115,3 @@ def losses_png(result: HOIResult) -> bytes:
 
 #: Size in pixels of one stage's panel in ``losses.png``.
 _CHART_W, _CHART_H = 420, 320
-
-
-def fixed_margins(fig, *, left, right, top, bottom, wspace, hspace) -> None:
-    """Place a figure's subplot grid with margins and gaps given in inches.
-
-    A fixed layout instead of ``tight_layout``, which draws the whole figure once more to
-    measure its texts (about a third of a figure's cost); the margins hold the titles and tick
-    labels the figures of this package use.
-    """
-    w, h = fig.get_size_inches()
-    grid = fig.axes[0].get_subplotspec().get_gridspec() if fig.axes else None
-    rows, cols = grid.get_geometry() if grid is not None else (1, 1)
-    ax_w = max((w - left - right - wspace * (cols - 1)) / cols, 1e-3)
-    ax_h = max((h - top - bottom - hspace * (rows - 1)) / rows, 1e-3)
-    fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
-                        wspace=wspace / ax_w, hspace=hspace / ax_h)  # fmt: skip
