@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from easyhoi.perception import held_object as ho
-from easyhoi.perception.click import click_object, collapsed
+from easyhoi.perception.click import click_object, click_proposals
 from easyhoi.perception.proposals import Proposals
 from easyhoi.perception.skin import fill_holes
 
@@ -179,8 +179,10 @@ def clicked_object(
 ) -> tuple[np.ndarray, ho.Hypotheses, int | None, Proposals | None]:
     """The object from object points alone.
 
-    GrabCut grown from the points (:func:`easyhoi.perception.click.click_object`); the region
-    proposals (costly) are made only when GrabCut collapses to the points.
+    The candidates are the GrabCut masks grown from the first point
+    (:func:`easyhoi.perception.click.click_candidates`) and every region proposal containing it,
+    from ``make_proposals`` and from a finer segmentation of the crop
+    (:func:`easyhoi.perception.click.click_proposals`); :func:`click_object` keeps the best.
 
     Args:
         img (np.ndarray): (h, w, 3) uint8 RGB working crop.
@@ -191,17 +193,15 @@ def clicked_object(
         seed (int): Seed of OpenCV's RNG.
 
     Returns:
-        tuple: (h, w) bool object mask, the hypotheses (the output mask alone when no proposals
-        were made), the index of the chosen one, and the proposals or None.
+        tuple: (h, w) bool object mask, the hypotheses (the output mask alone), the index of
+        the chosen one, and the proposals.
     """
-    obj, _ = click_object(img, scene, points, [], iterations, seed)
-    if not collapsed(obj, scene):
-        return obj, mask_hypothesis(obj, scene), 0, None
+    h, w = img.shape[:2]
+    pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
     props = make_proposals()
-    obj, hyp, best = prompted_object(img, props, scene, points, None, iterations, seed)
-    if hyp is None:
-        hyp, best = mask_hypothesis(obj, scene), 0
-    return obj, hyp, best, props
+    fallback = click_proposals(img, scene, pts[0], props)
+    obj, _ = click_object(img, scene, pts, fallback, iterations, seed)
+    return obj, mask_hypothesis(obj, scene), 0, props
 
 
 def mask_hypothesis(mask: np.ndarray, scene: ho.Scene) -> ho.Hypotheses:
