@@ -13,6 +13,17 @@ or its hull)``, holes filled, so it always contains M_o. Shape-completion fallba
 leaks (``G`` covers more than ``leak_fraction`` of the box) or returns nothing beyond M_o, the
 mask becomes ``M_o | (hull(M_o) & G)`` when that is non-trivial, else ``M_o | hull(M_o)``; the
 meta of the last call (:attr:`ClassicalAmodalSegmenter.last_meta`) says which branch ran.
+
+Occluder-bounded completion (used whenever the hand mask is known). The hidden part of a held
+object lies behind the occluder: every object pixel that is not visible is covered by the hand (or
+lies outside the photo), so a completion may add pixels only inside the hand region (dilated by
+``occluder_margin_px`` for anti-aliased mask borders). Within it, the hidden outline is unknown;
+the convex hull of the visible parts is the smoothest continuation of the visible outline that
+joins the parts the hand splits, so the completion is ``M_o | (hull(M_o) & dilate(hand))``.
+GrabCut is not used there: on the inpainted hand region its colour model sees smeared
+background and object colours, and on synthetic photos of 14 scanned objects it added 10-80 % of
+the object's area inside the hand region while the hull rule does not (see docs/object_shape.md).
+Amodal masks from other backends are clipped the same way (:func:`bound_by_occluder`).
 """
 
 from __future__ import annotations
@@ -102,6 +113,60 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
     return (m | (1 - flood)).astype(bool)[1:-1, 1:-1]
 
 
+def _dilate(mask: np.ndarray, radius: float) -> np.ndarray:
+    r = int(round(radius))
+    if r <= 0:
+        return mask.astype(bool)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    return cv2.dilate(mask.astype(np.uint8), k) > 0
+
+
+def occluder_completion(
+    visible_mask: np.ndarray, hand_mask: np.ndarray, margin_px: float = 2.0
+) -> np.ndarray:
+    """(H, W) bool ``M_o | (hull(M_o) & dilate(hand, margin_px))``: the convex continuation of the
+    visible outline, only where the hand can hide it."""
+    vis = np.asarray(visible_mask, bool)
+    hand = check_mask(hand_mask, vis.shape, "hand mask")
+    return vis | (convex_hull_mask(vis) & _dilate(hand, margin_px))
+
+
+def bound_by_occluder(
+    amodal_mask: np.ndarray,
+    visible_mask: np.ndarray,
+    hand_mask: np.ndarray,
+    margin_px: float = 2.0,
+) -> np.ndarray:
+    """(H, W) bool ``M_o | (amodal & dilate(hand, margin_px))``: drop what a completion adds where
+    nothing occludes the object (there the photo shows background, not hidden object)."""
+    vis = np.asarray(visible_mask, bool)
+    hand = check_mask(hand_mask, vis.shape, "hand mask")
+    return vis | (np.asarray(amodal_mask, bool) & _dilate(hand, margin_px))
+
+
+def amodal_mask(
+    backend,
+    image: np.ndarray,
+    points: np.ndarray,
+    box: tuple[float, float, float, float],
+    visible_mask: np.ndarray,
+    hand_mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """The amodal mask from any ``amodal`` backend, bounded by the occluder when it is known.
+
+    The classical segmenter gets the hand mask (it completes behind it); any other backend's mask
+    is clipped with :func:`bound_by_occluder`. Always a superset of ``visible_mask``.
+    """
+    vis = np.asarray(visible_mask, bool)
+    if isinstance(backend, ClassicalAmodalSegmenter):
+        out = backend.segment(image, points, box, vis, hand_mask=hand_mask)
+    else:
+        out = np.asarray(backend.segment(image, points, box, vis), bool)
+        if hand_mask is not None:
+            out = bound_by_occluder(out, vis, hand_mask)
+    return np.asarray(out, bool) | vis
+
+
 @register("amodal", "classical")
 class ClassicalAmodalSegmenter:
     """Prompt-driven GrabCut with a convex-hull shape-completion fallback.
@@ -114,6 +179,8 @@ class ClassicalAmodalSegmenter:
         point_radius (float): Radius of the sure-foreground disk around each prompt point, in
             working pixels.
         iterations, seed (int): GrabCut iterations and OpenCV RNG seed.
+        occluder_margin_px (float): Dilation of the hand mask (image pixels) for the
+            occluder-bounded completion.
     """
 
     def __init__(
@@ -124,6 +191,7 @@ class ClassicalAmodalSegmenter:
         point_radius: float = 3.0,
         iterations: int = 5,
         seed: int = 0,
+        occluder_margin_px: float = 2.0,
     ):
         self.work_side = int(work_side)
         self.margin = float(margin)
@@ -131,6 +199,7 @@ class ClassicalAmodalSegmenter:
         self.point_radius = float(point_radius)
         self.iterations = int(iterations)
         self.seed = int(seed)
+        self.occluder_margin_px = float(occluder_margin_px)
         self.last_meta: dict = {}
 
     def segment(
@@ -139,11 +208,14 @@ class ClassicalAmodalSegmenter:
         points: np.ndarray,
         box: tuple[float, float, float, float],
         visible_mask: np.ndarray,
+        hand_mask: np.ndarray | None = None,
     ) -> np.ndarray:
         """(H, W) bool amodal mask (always a superset of ``visible_mask``).
 
         ``image`` (H, W, 3) uint8 is the hand-free (inpainted) photo, ``points`` (N, 2) (u, v)
-        pixels, ``box`` (u0, v0, u1, v1) pixels.
+        pixels, ``box`` (u0, v0, u1, v1) pixels. With ``hand_mask`` ((H, W) bool, the occluder)
+        the result is the occluder-bounded completion (:func:`occluder_completion`); without it,
+        prompted GrabCut.
         """
         image = check_image(image)
         H, W = image.shape[:2]
@@ -154,6 +226,14 @@ class ClassicalAmodalSegmenter:
         u0, v0, u1, v1 = (float(b) for b in box)
         if not (u1 > u0 and v1 > v0):
             raise InvalidInputError(f"box must be (u0, v0, u1, v1) with u1 > u0, v1 > v0: {box}")
+        if hand_mask is not None:
+            out = occluder_completion(vis, hand_mask, self.occluder_margin_px)
+            self.last_meta = {
+                "branch": "occluder-hull",
+                "leak": False,
+                "added": int(out.sum() - vis.sum()),
+            }
+            return out
         mu, mv = self.margin * (u1 - u0), self.margin * (v1 - v0)
         x0, y0 = int(max(0, np.floor(u0 - mu))), int(max(0, np.floor(v0 - mv)))
         x1, y1 = int(min(W, np.ceil(u1 + mu))), int(min(H, np.ceil(v1 + mv)))

@@ -116,7 +116,7 @@ def perceive(
         NoObjectError: hands were found but none holds an object.
     """
     from easyhoi.geometry.watertight import make_watertight
-    from easyhoi.perception.amodal import amodal_prompts
+    from easyhoi.perception.amodal import amodal_mask, amodal_prompts
     from easyhoi.perception.hand_fit import fit_detection
 
     if isinstance(settings, RunSettings):
@@ -204,11 +204,13 @@ def perceive(
     else:
         amodal = timed(
             "amodal segmentation",
-            _backend(pc, "amodal", pc.amodal, seed, run.device).segment,
+            amodal_mask,
+            _backend(pc, "amodal", pc.amodal, seed, run.device),
             inpainted,
             points,
             box,
             seg.object_mask,
+            seg.hand_mask,
         )
     amodal = np.asarray(amodal, bool) | seg.object_mask
     if pv.object_mesh is not None:
