@@ -139,9 +139,11 @@ def project_faces(
     with torch.no_grad():
         # a face is kept when all its corners are: test the V vertices, not the 3 F corners
         ok_v = (z >= near) & torch.isfinite(uv).all(dim=2)
+        if bool(ok_v.all()):  # every vertex usable (the usual case): every face kept, in order
+            return tri_uv, tri_z, torch.arange(B * F, device=uv.device)
         ok = ok_v.index_select(1, corners).reshape(B * F, 3).all(dim=1)
         keep = ok.nonzero().squeeze(1)
-    if keep.shape[0] == B * F:  # nothing dropped (the usual case): no second gather
+    if keep.shape[0] == B * F:  # nothing dropped: no second gather
         return tri_uv, tri_z, keep
     return tri_uv[keep], tri_z[keep], keep
 
