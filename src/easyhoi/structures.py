@@ -255,10 +255,11 @@ class Camera:
             depth: (...,) camera-frame z (positive in front of the camera).
         """
         pc = self.world_to_camera(points)
-        z = pc[..., 2]
-        zs = torch.where(z.abs() < eps, torch.full_like(z, eps), z)
-        u = self.K[0, 0] * pc[..., 0] / zs + self.K[0, 1] * pc[..., 1] / zs + self.K[0, 2]
-        v = self.K[1, 1] * pc[..., 1] / zs + self.K[1, 2]
+        x, y, z = pc.unbind(-1)
+        zs = torch.where(z.abs() < eps, eps, z)
+        fx, skew, cx, _, fy, cy, _, _, _ = self.K.flatten().unbind()  # one op, not five
+        u = fx * x / zs + skew * y / zs + cx
+        v = fy * y / zs + cy
         return torch.stack([u, v], dim=-1), z
 
     def unproject(self, uv: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
