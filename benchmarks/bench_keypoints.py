@@ -12,8 +12,12 @@ side of the reference keypoints' box), and the ``hand_change`` summary of the re
 the optimizer moved the hand from the estimator). The optimizer must not make the hand worse
 in the photo than the detector's keypoints: ``final <= detector`` per image is the check.
 
-Data: ``../shared/data/keypoints-dev`` (8 FreiHAND crops, ``test_freihand.json``) and any
-COCO file under ``tests/data/keypoint_refs/`` (photos beside it). Missing folders are skipped.
+Data: ``../shared/data/keypoints-dev`` (8 FreiHAND crops, ``test_freihand.json``) and the
+project's own references ``tests/data/keypoint_refs/*.json`` (one hand of a development photo
+each, format in ``tests/keypoint_refs.py``). On the own references the errors count only the
+joints marked visible (a hidden joint's reference is a guess), and the annotated hand is chosen
+with a hand point at the centre of its reference keypoints (the photos may show two hands; the
+check is about the hand, not about which hand perception picks). Missing photos are skipped.
 
 Usage::
 
@@ -36,6 +40,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
+SHARED = (ROOT.parent / "shared" / "data", Path("/work/shared/data"))
+OWN_REFS = ROOT / "tests" / "data" / "keypoint_refs"
 DATASETS = (
     (ROOT.parent / "shared" / "data" / "keypoints-dev" / "test_freihand.json", None),
     (Path("/work/shared/data/keypoints-dev/test_freihand.json"), None),
@@ -56,10 +62,27 @@ def load_coco(path: Path, images: Path | None = None) -> list[tuple[Path, np.nda
     return sorted(out, key=lambda x: x[0].name)
 
 
-def errors(pred: np.ndarray, ref: np.ndarray) -> dict:
-    """Mean pixel error and PCK at 5 % / 10 % of the reference box's larger side."""
+def load_own_refs(folder: Path, shared: Path) -> list[tuple[Path, np.ndarray, np.ndarray]]:
+    """(photo path, (21, 2) keypoints, (21,) visible) per own reference whose photo exists."""
+    out = []
+    for path in sorted(folder.glob("*.json")):
+        data = json.loads(path.read_text())
+        kp = np.asarray(data["keypoints"], dtype=np.float64).reshape(-1, 3)
+        photo = shared / data["image"]
+        if kp.shape[0] == 21 and photo.is_file():
+            out.append((photo, kp[:, :2], kp[:, 2] > 0.5))
+    return out
+
+
+def errors(pred: np.ndarray, ref: np.ndarray, visible: np.ndarray | None = None) -> dict:
+    """Mean pixel error and PCK at 5 % / 10 % of the reference box's larger side.
+
+    With ``visible``, only those joints are counted (the box is still all 21 joints').
+    """
     d = np.linalg.norm(np.asarray(pred, dtype=np.float64) - ref, axis=1)
     size = float(np.ptp(ref, axis=0).max())
+    if visible is not None:
+        d = d[np.asarray(visible, bool)]
     return {
         "mean_px": float(d.mean()),
         "pck05": float((d <= 0.05 * size).mean()),
@@ -80,21 +103,28 @@ def final_keypoints(result) -> np.ndarray:
     return uv.numpy()
 
 
-def run_photo(photo: Path, ref: np.ndarray) -> dict:
+def run_photo(
+    photo: Path, ref: np.ndarray, visible: np.ndarray | None = None, hand_point: bool = False
+) -> dict:
     from easyhoi.config import get_preset
     from easyhoi.errors import EasyHOIError
+    from easyhoi.perception.prompts import Prompts
     from easyhoi.pipeline import reconstruct_photo
 
+    prompts = None
+    if hand_point:
+        cx, cy = ref.mean(axis=0)
+        prompts = Prompts(hand_point=(float(cx), float(cy)))
     t0 = time.perf_counter()
     try:
-        rec = reconstruct_photo(photo, None, get_preset("fast"), seed=0)
+        rec = reconstruct_photo(photo, None, get_preset("fast"), seed=0, prompts=prompts)
     except EasyHOIError as exc:
         return {"photo": photo.name, "error": f"{type(exc).__name__}: {exc}"}
     det = rec.inp.meta.get("keypoints2d")
     row = {"photo": photo.name, "seconds": time.perf_counter() - t0}
     if det is not None:
-        row["detector"] = errors(np.asarray(det), ref)
-    row["final"] = errors(final_keypoints(rec.result), ref)
+        row["detector"] = errors(np.asarray(det), ref, visible)
+    row["final"] = errors(final_keypoints(rec.result), ref, visible)
     row["hand_change"] = {
         k: v for k, v in rec.result.hand_change.items() if k.startswith(("mean", "max"))
     }
@@ -112,7 +142,6 @@ def main(argv=None) -> int:
 
     torch.set_num_threads(1)
     sets = [(args.coco, args.images)] if args.coco else list(DATASETS)
-    sets += [(p, None) for p in sorted((ROOT / "tests" / "data" / "keypoint_refs").glob("*.json"))]
     rows, seen = [], set()
     for coco, images in sets:
         if coco is None or not coco.exists() or coco.resolve() in seen:
@@ -122,6 +151,14 @@ def main(argv=None) -> int:
         for photo, ref in items[: args.limit or None]:
             row = run_photo(photo, ref)
             row["set"] = coco.name
+            rows.append(row)
+            print(_line(row), flush=True)
+    if not args.coco:
+        shared = next((d for d in SHARED if d.is_dir()), None)
+        own = load_own_refs(OWN_REFS, shared) if shared else []
+        for photo, ref, visible in own[: args.limit or None]:
+            row = run_photo(photo, ref, visible, hand_point=True)
+            row["set"] = "keypoint_refs"
             rows.append(row)
             print(_line(row), flush=True)
     if not rows:
