@@ -204,6 +204,10 @@ class ContactStageConfig:
     initial_competes: bool = False
     """The state the stage starts from competes for the best state (False = the paper's: only
     states from the first registration on)."""
+    score_band: bool = False
+    """The best-state score measures touching with the depth scan's contact-band term (the
+    contact zones on the surface, scan_band) instead of the closest vertex's distance to it;
+    used only when scan_band > 0."""
 
     def __post_init__(self):
         _finite(self)
@@ -490,6 +494,11 @@ _FAST = EasyHOIConfig(
             # the start (already placed at the scanned depth) competes for the best state, so
             # the stage never ends worse by its own score than it began
             initial_competes=True,
+            # the best state is judged by the scan's own touching term (contact zones on the
+            # surface), not by the closest vertex: with the estimator's articulation, the rigid
+            # hand whose deepest vertex just touches is a hand backed off the object, which
+            # then holds nothing
+            score_band=True,
         ),
         refine=RefineStageConfig(
             max_iters=100,
