@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from easyhoi.perception.proposals import Proposals, segment_sums
+from easyhoi.perception.proposals import Proposals, membership, segment_sums
 from easyhoi.perception.skin import SKIN_D2, grabcut, hand_axis, palm_length
 
 #: A finger touches a region closer than this to its last two bones, in palm lengths (a finger
@@ -159,10 +159,13 @@ def _base_stats(props: Proposals, scene: Scene) -> dict[str, np.ndarray]:
         "far": segment_sums(lab_, hand_dist > 2.0 * L, n),
     }
     fd = finger_distances(shape, scene.kp)
-    ok = lab_ >= 0
     mins = np.full((5, n), np.inf)
-    for f in range(5):
-        np.minimum.at(mins[f], lab_[ok], fd[f][ok])
+    if n:
+        from scipy.ndimage import minimum
+
+        idx = np.arange(1, n + 1)
+        for f in range(5):
+            mins[f] = minimum(fd[f], lab_ + 1, idx)
     stats["finger_min"] = mins
     return stats
 
@@ -174,23 +177,23 @@ def describe(props: Proposals, scene: Scene) -> np.ndarray:
     L = scene.palm
     grasp_total = max(1.0, float(grasp_zone(props.labels.shape, scene.kp, scene.hand).sum()))
     out = np.zeros((len(props.regions), len(CUES)))
-    for i, reg in enumerate(props.regions):
-        idx = np.fromiter(reg, int, len(reg))
-        size = max(1.0, float(st["size"][idx].sum()))
-        touch = st["finger_min"][:, idx].min(1) <= TOUCH * L
-        out[i] = (
-            float(touch.sum()),
-            float(touch[0]),
-            float(st["grasp"][idx].sum()) / grasp_total,
-            float(st["contact"][idx].sum()) / ((CONTACT * L + 1.5) * L),
-            float(st["skin"][idx].sum()) / size,
-            float(st["other"][idx].sum()) / size,
-            float(st["ring"][idx].sum()) / L,
-            size / scene.hand_area,
-            float(st["far"][idx].sum()) / size,
-            0.0,
-            0.0,
-        )
+    if not props.regions:
+        return out
+    member = membership(props)
+    sums = member @ np.stack(
+        [st[k] for k in ("size", "grasp", "contact", "skin", "other", "ring", "far")], 1
+    )
+    size = np.maximum(1.0, sums[:, 0])
+    touch = (member @ (st["finger_min"] <= TOUCH * L).T.astype(np.float64)) > 0
+    out[:, 0] = touch.sum(1)
+    out[:, 1] = touch[:, 0]
+    out[:, 2] = sums[:, 1] / grasp_total
+    out[:, 3] = sums[:, 2] / ((CONTACT * L + 1.5) * L)
+    out[:, 4] = sums[:, 3] / size
+    out[:, 5] = sums[:, 4] / size
+    out[:, 6] = sums[:, 5] / L
+    out[:, 7] = size / scene.hand_area
+    out[:, 8] = sums[:, 6] / size
     return out
 
 

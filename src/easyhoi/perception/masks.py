@@ -6,7 +6,7 @@ masks are mapped back to the full image at the end.
 
 1. Hand: this hand's colour model and GrabCut seeded by its skeleton (:mod:`.skin`).
 2. Proposals: Felzenszwalb segments outside the hands, grouped hierarchically into
-   hypotheses (:mod:`.proposals`).
+   hypotheses (:mod:`.proposals`); the automatic path pools the hierarchies of three scales.
 3. Held object: every hypothesis is scored by grasp cues (:mod:`.held_object`); the best one is
    refined by GrabCut seeded by it. With prompts, the hypotheses are those containing the
    object points / filling the box (:mod:`.prompted`).
@@ -18,6 +18,8 @@ No hypothesis scoring above ``min_score`` means no held object (``has_object=Fal
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -27,7 +29,7 @@ from easyhoi.io.image import check_image
 from easyhoi.perception import held_object as ho
 from easyhoi.perception.base import HandDetection, Segmentation, register
 from easyhoi.perception.prompts import Prompts
-from easyhoi.perception.proposals import propose
+from easyhoi.perception.proposals import Proposals, propose, propose_scales
 from easyhoi.perception.seg_confidence import hand_confidence, object_confidence
 from easyhoi.perception.skin import (  # noqa: F401  (re-exported: the masks' drawing helpers)
     BONES,
@@ -102,6 +104,24 @@ def _check_keypoints(hand: HandDetection) -> np.ndarray:
     return kp
 
 
+@dataclass(frozen=True)
+class _Work:
+    """The working crop of one hand (see :meth:`ClassicalHOISegmenter._setup`)."""
+
+    full_shape: tuple[int, int]
+    crop: tuple[int, int, int, int]
+    scale: float
+    side: int
+    prompts: Prompts | None
+    clicks: bool
+    img: np.ndarray
+    lab: np.ndarray
+    scene: ho.Scene
+    excl: np.ndarray
+    min_size: int
+    to_work: Callable[[np.ndarray], np.ndarray]
+
+
 @register("segmenter", "classical")
 class ClassicalHOISegmenter:
     """Hand mask from the skeleton; held object by ranked region proposals.
@@ -120,6 +140,10 @@ class ClassicalHOISegmenter:
         refine_top (int): Number of best distinct hypotheses refined by GrabCut and scored again.
         iterations (int): GrabCut iterations.
         seed (int): Seed of OpenCV's RNG (GrabCut's GMM initialisation uses k-means).
+        auto_scales (tuple of float): Felzenszwalb scales whose hierarchies are pooled on the
+            automatic path (fine: small objects stay apart; coarse: textured objects stay whole).
+        rank_top (int): Hypotheses (best by the cheap cues) that get the cues needing the mask
+            drawn (contrast, solidity) before the final ranking.
     """
 
     def __init__(
@@ -132,7 +156,11 @@ class ClassicalHOISegmenter:
         click_side: int = 384,
         refine_top: int = 1,
         seed: int = 0,
+        auto_scales: tuple[float, ...] = (100.0, 300.0, 600.0),
+        rank_top: int = 24,
     ):
+        self.auto_scales = tuple(float(v) for v in auto_scales)
+        self.rank_top = int(rank_top)
         self.refine_top = int(refine_top)
         self.click_side = int(click_side)
         self.crop_factor = float(crop_factor)
@@ -183,43 +211,14 @@ class ClassicalHOISegmenter:
         """
         from easyhoi.perception.prompted import clicked_object, prompted_object
 
-        image = check_image(image)
-        H, W = image.shape[:2]
-        kp_full = _check_keypoints(hand)
-        if prompts is not None:
-            prompts = prompts.check(W, H)
-        clicks = prompts is not None and bool(prompts.object_points) and prompts.object_box is None
-        side = self.click_side if clicks else self.work_side
-        (x0, y0, x1, y1), s = self._crop((H, W), kp_full, prompts, side)
-        cw, ch = max(8, round((x1 - x0) * s)), max(8, round((y1 - y0) * s))
-        interp = cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR
-        img = np.ascontiguousarray(cv2.resize(image[y0:y1, x0:x1], (cw, ch), interpolation=interp))
-        sx, sy = cw / (x1 - x0), ch / (y1 - y0)
-
-        def to_work(p):
-            return (np.asarray(p, dtype=np.float64).reshape(-1, 2) - [x0, y0]) * [sx, sy]
-
-        kp = to_work(kp_full)
-        L = palm_length(kp)
-        shape = img.shape[:2]
-        lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
-        d2 = skin_model(lab, kp).d2(lab)
+        w = self._setup(image, hand, prompts, others)
+        prompts, clicks, side = w.prompts, w.clicks, w.side
+        img, lab, scene, to_work, shape = w.img, w.lab, w.scene, w.to_work, w.img.shape[:2]
+        H, W = w.full_shape
+        (x0, y0, x1, y1), s = w.crop, w.scale
+        hand_m, kp, d2, L, excl = scene.hand, scene.kp, scene.skin_d2, scene.palm, w.excl
+        min_size = w.min_size
         prompted = prompts is not None and prompts.has_object_prompt
-        disks = None
-        if prompted and prompts.object_points:  # the user's object points are not the hand
-            disks = np.zeros(shape, np.uint8)
-            for u, v in to_work(prompts.object_points):
-                cv2.circle(disks, (int(round(u)), int(round(v))), max(2, int(0.05 * L)), 1, -1)
-            disks = disks.astype(bool)
-        hand_m = hand_mask(img, lab, kp, d2, self.iterations, self.seed, not_hand=disks)
-        other = np.zeros(shape, bool)
-        for o in others:
-            ko = to_work(_check_keypoints(o))
-            other |= draw_skeleton(shape, ko, 0.3 * palm_length(ko), palm=True)
-        other &= ~hand_m
-        scene = ho.Scene(lab=lab, hand=hand_m, kp=kp, skin_d2=d2, other_hands=other)
-        excl = hand_m | other
-        min_size = max(8, int((0.12 * L) ** 2))
 
         def proposals():
             return propose(
@@ -249,8 +248,8 @@ class ClassicalHOISegmenter:
             )
             has_object = bool(obj.any())
         else:
-            props = proposals()
-            hyp = ho.rank(props, scene) if props.regions else None
+            props = self._auto_proposals(w)
+            hyp = ho.rank(props, scene, self.rank_top) if props.regions else None
             best, obj = None, np.zeros(shape, bool)
             if hyp is not None and np.isfinite(hyp.scores).any():
                 best, obj, hyp = self._refine_best(img, props, scene, hyp, excl)
@@ -305,6 +304,81 @@ class ClassicalHOISegmenter:
                 "hypotheses": top,
             },
         )
+
+    def _setup(self, image, hand, prompts, others) -> _Work:
+        """The working crop of ``hand``: image, Lab, hand mask, the other hands, the scene."""
+        image = check_image(image)
+        H, W = image.shape[:2]
+        kp_full = _check_keypoints(hand)
+        if prompts is not None:
+            prompts = prompts.check(W, H)
+        clicks = prompts is not None and bool(prompts.object_points) and prompts.object_box is None
+        side = self.click_side if clicks else self.work_side
+        (x0, y0, x1, y1), s = self._crop((H, W), kp_full, prompts, side)
+        cw, ch = max(8, round((x1 - x0) * s)), max(8, round((y1 - y0) * s))
+        interp = cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR
+        img = np.ascontiguousarray(cv2.resize(image[y0:y1, x0:x1], (cw, ch), interpolation=interp))
+        sx, sy = cw / (x1 - x0), ch / (y1 - y0)
+
+        def to_work(p):
+            return (np.asarray(p, dtype=np.float64).reshape(-1, 2) - [x0, y0]) * [sx, sy]
+
+        kp = to_work(kp_full)
+        L = palm_length(kp)
+        shape = img.shape[:2]
+        lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+        d2 = skin_model(lab, kp).d2(lab)
+        disks = None
+        if prompts is not None and prompts.has_object_prompt and prompts.object_points:
+            # the user's object points are not the hand
+            disks = np.zeros(shape, np.uint8)
+            for u, v in to_work(prompts.object_points):
+                cv2.circle(disks, (int(round(u)), int(round(v))), max(2, int(0.05 * L)), 1, -1)
+            disks = disks.astype(bool)
+        hand_m = hand_mask(img, lab, kp, d2, self.iterations, self.seed, not_hand=disks)
+        other = np.zeros(shape, bool)
+        for o in others:
+            ko = to_work(_check_keypoints(o))
+            other |= draw_skeleton(shape, ko, 0.3 * palm_length(ko), palm=True)
+        other &= ~hand_m
+        scene = ho.Scene(lab=lab, hand=hand_m, kp=kp, skin_d2=d2, other_hands=other)
+        return _Work(
+            full_shape=(H, W),
+            crop=(x0, y0, x1, y1),
+            scale=s,
+            side=side,
+            prompts=prompts,
+            clicks=clicks,
+            img=img,
+            lab=lab,
+            scene=scene,
+            excl=hand_m | other,
+            min_size=max(8, int((0.12 * L) ** 2)),
+            to_work=to_work,
+        )
+
+    def _auto_proposals(self, w: _Work) -> Proposals:
+        """Hypotheses of the automatic path: the pooled hierarchies of :attr:`auto_scales`."""
+        return propose_scales(
+            w.img,
+            w.lab,
+            w.excl,
+            self.auto_scales,
+            w.min_size,
+            max_size=4.0 * ho.AREA_RANGE[1] * w.scene.hand_area,
+        )
+
+    def automatic_hypotheses(
+        self,
+        image: np.ndarray,
+        hand: HandDetection,
+        others: tuple[HandDetection, ...] | list[HandDetection] = (),
+    ) -> tuple[tuple[int, int, int, int], Proposals]:
+        """The working crop (x0, y0, x1, y1) in photo pixels and every hypothesis the automatic
+        path ranks for ``hand`` (in crop pixels, resampled to ``work_side``). Used to measure
+        how good the best hypothesis is, whichever the ranking picks."""
+        w = self._setup(image, hand, None, others)
+        return w.crop, self._auto_proposals(w)
 
     def _refine_best(self, img, props, scene, hyp, excl):
         """Refine the ``refine_top`` best distinct hypotheses by GrabCut and score the refined

@@ -10,12 +10,16 @@ crop, so an object made of several coloured parts (a can with a label, a bottle 
 appears as one hypothesis at some level of the hierarchy while the background next to it stays
 another.
 
+The automatic path pools the hierarchies of several Felzenszwalb scales on their common
+refinement (:func:`propose_scales`): the right granularity differs between photos and objects.
+
 Hypotheses are represented by the set of base segments they contain; per-segment statistics
 (summed by :func:`segment_sums`) give most cues of a hypothesis without drawing its mask.
 """
 
 from __future__ import annotations
 
+import heapq
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,22 +58,26 @@ def base_segments(
     image: np.ndarray, exclude: np.ndarray, scale: float, min_size: int, sigma: float = 0.8
 ) -> np.ndarray:
     """(h, w) int labels 0..n-1 of Felzenszwalb segments split into connected pieces outside
-    ``exclude`` (labelled -1)."""
-    import cv2
-    from skimage.segmentation import felzenszwalb
+    ``exclude`` (labelled -1).
 
-    seg = felzenszwalb(image, scale=scale, sigma=sigma, min_size=min_size)
+    OpenCV's implementation (``ximgproc``, from the ``opencv-contrib-python`` that MediaPipe
+    requires) is used when present, scikit-image's otherwise (same algorithm, a few times
+    slower)."""
+    import cv2
+    from skimage.measure import label
+
+    if hasattr(cv2, "ximgproc"):
+        gs = cv2.ximgproc.segmentation.createGraphSegmentation(sigma, float(scale), int(min_size))
+        seg = gs.processImage(np.ascontiguousarray(image)).astype(np.int64)
+    else:
+        from skimage.segmentation import felzenszwalb
+
+        seg = felzenszwalb(image, scale=scale, sigma=sigma, min_size=min_size)
     seg = np.where(exclude, -1, seg)
     # a segment cut in two by the hand becomes two segments (pieces on either side of a finger
-    # are separate hypotheses until the grouping decides they belong together)
-    out = np.full(seg.shape, -1, np.int64)
-    nxt = 0
-    for lab in np.unique(seg[seg >= 0]):
-        n, cc = cv2.connectedComponents((seg == lab).astype(np.uint8), connectivity=4)
-        for i in range(1, n):
-            out[cc == i] = nxt
-            nxt += 1
-    return out
+    # are separate hypotheses until the grouping decides they belong together): 4-connected
+    # pieces of equal label, numbered in raster order
+    return label(seg, background=-1, connectivity=1).astype(np.int64) - 1
 
 
 def segment_sums(labels: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
@@ -112,10 +120,11 @@ def _histograms(lab: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
     """(n, 3 * BINS) L1-normalised Lab colour histograms of the base segments."""
     ok = labels >= 0
     out = np.zeros((n, 3 * BINS))
-    ranges = ((0.0, 255.0), (0.0, 255.0), (0.0, 255.0))  # OpenCV's 8-bit Lab
-    for c, (lo, hi) in enumerate(ranges):
-        b = np.clip(((lab[..., c] - lo) / (hi - lo) * BINS).astype(int), 0, BINS - 1)
-        np.add.at(out, (labels[ok], c * BINS + b[ok]), 1.0)
+    for c in range(3):  # OpenCV's 8-bit Lab: every channel in [0, 255]
+        b = np.clip((lab[..., c] / 255.0 * BINS).astype(np.int64), 0, BINS - 1)
+        out[:, c * BINS : (c + 1) * BINS] = np.bincount(
+            labels[ok] * BINS + b[ok], minlength=n * BINS
+        ).reshape(n, BINS)
     return out / np.maximum(out.sum(1, keepdims=True), 1.0)
 
 
@@ -140,21 +149,15 @@ def group(
     total = float((labels >= 0).sum())
     sizes = segment_sums(labels, np.ones(labels.shape), n)
     hist = list(_histograms(lab, labels, n))
-    yy, xx = np.nonzero(labels >= 0)
-    ll = labels[yy, xx]
-    bbox = np.stack(
+    from scipy.ndimage import find_objects
+
+    bbox = np.array(
         [
-            np.full(n, np.inf),
-            np.full(n, np.inf),
-            np.full(n, -np.inf),
-            np.full(n, -np.inf),
+            (sl[1].start, sl[0].start, sl[1].stop - 1, sl[0].stop - 1)
+            for sl in find_objects(labels + 1)
         ],
-        1,
+        np.float64,
     )
-    np.minimum.at(bbox[:, 0], ll, xx)
-    np.minimum.at(bbox[:, 1], ll, yy)
-    np.maximum.at(bbox[:, 2], ll, xx)
-    np.maximum.at(bbox[:, 3], ll, yy)
     regions: list[frozenset] = [frozenset((i,)) for i in range(n)]
     size = list(sizes)
     box = [tuple(b) for b in bbox]
@@ -173,13 +176,27 @@ def group(
         fill = 1.0 - (bx[0] * bx[1] - size[a] - size[b]) / total
         return colour + small + fill
 
-    pair_sim = {(a, b): sim(a, b) for a in neigh for b in neigh[a] if a < b}
-    while pair_sim:
-        (a, b), _ = max(pair_sim.items(), key=lambda kv: (kv[1], -kv[0][0], -kv[0][1]))
+    # a heap of candidate merges with lazy deletion: a merge whose pair no longer exists (one of
+    # its regions was merged since) is skipped when popped; ties go to the lowest labels
+    alive: set[tuple[int, int]] = set()
+    heap: list[tuple[float, int, int]] = []
+
+    def push(a: int, b: int) -> None:
+        alive.add((a, b))
+        heapq.heappush(heap, (-sim(a, b), a, b))
+
+    for a in neigh:
+        for b in neigh[a]:
+            if a < b:
+                push(a, b)
+    while heap:
+        _, a, b = heapq.heappop(heap)
+        if (a, b) not in alive:
+            continue
+        alive.discard((a, b))
         merged_size = size[a] + size[b]
         if max_size is not None and merged_size > max_size:
-            del pair_sim[(a, b)]  # too large to be a held object: this merge is not made
-            continue
+            continue  # too large to be a held object: this merge is not made
         new = len(regions)
         regions.append(regions[a] | regions[b])
         size.append(merged_size)
@@ -195,13 +212,13 @@ def group(
         nb = (neigh[a] | neigh[b]) - {a, b}
         for k in (a, b):
             for j in neigh.pop(k):
-                pair_sim.pop((min(j, k), max(j, k)), None)
+                alive.discard((min(j, k), max(j, k)))
                 if j in neigh:
                     neigh[j].discard(k)
         neigh[new] = nb
         for j in nb:
             neigh[j].add(new)
-            pair_sim[(j, new)] = sim(j, new)
+            push(j, new)
     return tuple(regions), sizes
 
 
@@ -217,3 +234,66 @@ def propose(
     labels = base_segments(image, exclude, scale, min_size)
     regions, sizes = group(labels, lab, max_size)
     return Proposals(labels=labels, regions=regions, sizes=sizes)
+
+
+def overlay(label_maps: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The common refinement of several segmentations of one image.
+
+    Returns:
+        labels ((h, w) int): One label per distinct combination of the input labels (-1 where
+            the inputs are -1; they share their excluded pixels).
+        parents (list of (n,) int): For each input, the label every common piece lies in.
+    """
+    ok = label_maps[0] >= 0
+    key = np.zeros(int(ok.sum()), np.int64)
+    for m in label_maps:
+        key = key * (int(m.max()) + 2) + m[ok] + 1
+    uniq, inv = np.unique(key, return_inverse=True)
+    labels = np.full(label_maps[0].shape, -1, np.int64)
+    labels[ok] = inv
+    _, first = np.unique(inv, return_index=True)  # one pixel of each piece
+    parents = [m[ok][first] for m in label_maps]
+    return labels, parents
+
+
+def propose_scales(
+    image: np.ndarray,
+    lab: np.ndarray,
+    exclude: np.ndarray,
+    scales: tuple[float, ...],
+    min_size: int,
+    max_size: float | None = None,
+) -> Proposals:
+    """Hypotheses grouped from Felzenszwalb segmentations at several ``scales``, on one set of
+    base segments (their common refinement), duplicates removed.
+
+    The right granularity differs between photos and between objects in one photo: a fine
+    segmentation keeps a small object (a pen, a lid) apart from the fingers and the table, a
+    coarse one keeps a textured object (a printed box, a board game) in few pieces that the
+    grouping can join. Pooling the hierarchies of both lets the held-object cues choose."""
+    maps = [base_segments(image, exclude, s, min_size) for s in scales]
+    labels, parents = overlay(maps)
+    sizes = segment_sums(labels, np.ones(labels.shape), len(parents[0]))
+    regions: list[frozenset] = []
+    seen: set[frozenset] = set()
+    for m, par in zip(maps, parents, strict=True):
+        order = np.argsort(par, kind="stable")
+        starts = np.searchsorted(par[order], np.arange(int(m.max()) + 2))
+        pieces = [order[starts[b] : starts[b + 1]] for b in range(int(m.max()) + 1)]
+        for reg in group(m, lab, max_size)[0]:
+            r = frozenset(np.concatenate([pieces[b] for b in reg]).tolist())
+            if r not in seen:
+                seen.add(r)
+                regions.append(r)
+    return Proposals(labels=labels, regions=tuple(regions), sizes=sizes)
+
+
+def membership(props: Proposals):
+    """(n_regions, n_base) sparse 0/1 matrix: which base segments each hypothesis contains."""
+    from scipy.sparse import csr_matrix
+
+    lens = np.fromiter((len(r) for r in props.regions), np.int64, len(props.regions))
+    cols = np.fromiter((i for r in props.regions for i in r), np.int64, int(lens.sum()))
+    indptr = np.concatenate([[0], np.cumsum(lens)])
+    data = np.ones(len(cols))
+    return csr_matrix((data, cols, indptr), shape=(len(props.regions), props.n_base))
