@@ -266,3 +266,26 @@ def test_score_band_keeps_a_held_grasp_on_the_object(held_grasp):
             assert ends[True] <= start + 1e-6
             assert abs(res.metric_scale / m_gt - 1) < 0.1
     assert ends[True] < ends[False], ends
+
+
+def test_contact_band_term_sees_a_hand_off_the_object(hand):
+    """The band term is the naive mean of min(|d|, band) / band over the contact zones, plus,
+    when no contact zone lies in the band, the closest one's distance beyond it (in bands): a
+    hand moved off the object scores worse the farther it is, where the band term alone is
+    flat (every contact zone clamped; the toy hand touches with one vertex outside the contact
+    zones, so none is in the band even at its true place)."""
+    from easyhoi.optim.contact import _touch
+
+    sc, scene, _, _ = _setup("box", hand)
+    gt = _gt_verts(sc, hand)
+    away = gt.mean(0) - scene.center
+    away = away / away.norm()
+    band, scores = 0.02, []
+    for shift in (0.0, 0.1, 0.2, 0.3):  # normalised object units
+        v = gt + shift * scene.extent * away
+        got = _touch(scene, v, 48, band)
+        d = scene.sdf(v, 48)[scene.regions.contact_vertices].abs().tolist()
+        naive = sum(min(x, band) for x in d) / len(d) / band + max(min(d) - band, 0.0) / band
+        assert got == pytest.approx(naive, rel=1e-5)
+        scores.append(got)
+    assert scores[0] < scores[1] < scores[2] < scores[3], scores

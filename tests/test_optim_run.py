@@ -41,13 +41,8 @@ def _small(**over):
 
 @pytest.fixture(scope="module")
 def full_result(scene, hand):
-    """The fast preset on the toy box scene, stage 2 scored by the closest vertex: the toy hand
-    touches at one point (its palm 1 mm off the object, the fingers open), which the contact
-    band of the preset's score (made for grasps, docs/benchmark.md) does not see: scored by the
-    band this hand ends 1.1 cm off the object."""
     calls = []
-    cfg = _cfg(**{"contact.score_band": False})
-    res = optimize(scene.inp, cfg, hand_model=hand, progress=lambda *a: calls.append(a))
+    res = optimize(scene.inp, _cfg(), hand_model=hand, progress=lambda *a: calls.append(a))
     return res, calls
 
 

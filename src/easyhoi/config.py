@@ -195,8 +195,9 @@ class ContactStageConfig:
     one nearest the current depth wins (0 = the best score)."""
     scan_band: float = 0.0
     """Depth scan touching term: 0 = the closest hand vertex's distance to the surface; > 0 =
-    the mean over the contact-zone vertices of min(|d|, scan_band) / scan_band (d in normalised
-    object units: the grasp's contact zones on the surface)."""
+    the mean over the contact-zone vertices of min(|d|, scan_band) / scan_band, plus the closest
+    one's distance beyond the band (in bands) when none lies in it (d in normalised object
+    units: the grasp's contact zones on the surface)."""
 
     depth_only_registration: bool = False
     """Apply only the depth part of each registration's translation (as a change of the metric

@@ -159,7 +159,11 @@ def _touch(scene: Scene, verts_obj: torch.Tensor, sdf_resolution: int, band: flo
     with torch.no_grad():
         d = scene.sdf(verts_obj, sdf_resolution)
         if band > 0:
-            return float(d[scene.regions.contact_vertices].abs().clamp_max(band).mean()) / band
+            near = d[scene.regions.contact_vertices].abs()
+            # no contact zone in the band: the band term is flat, so the closest one's distance
+            # beyond the band tells a hand resting near the object from one far off it
+            beyond = max(float(near.min()) - band, 0.0)
+            return (float(near.clamp_max(band).mean()) + beyond) / band
         return abs(float(d.min()))
 
 
@@ -182,10 +186,12 @@ def scan_scale(
     ``|min_v d(v)|`` (some hand vertex on the surface); with ``band > 0``, the mean over the
     contact-zone vertices of ``min(|d(v)|, band) / band`` (the palmar contact zones lie on the
     surface: too shallow they float, too deep they sink in; one touching fingertip is not
-    enough). The depth where the photo's occlusions hold and the hand grasps the surface. Where the
-    photo cannot tell depths apart (the hand beside the object touches it at several depths),
-    candidates within ``tie_margin`` of the best score tie and the one nearest ``m0`` (smallest
-    ``|log(m / m0)|``) wins.
+    enough), plus, when no contact-zone vertex lies within the band, the closest one's distance
+    beyond it in bands (the band term alone is flat there and cannot tell a hand resting near
+    the object from one far off it). The depth where the photo's occlusions hold and the hand
+    grasps the surface. Where the photo cannot tell depths apart (the hand beside the object
+    touches it at several depths), candidates within ``tie_margin`` of the best score tie and
+    the one nearest ``m0`` (smallest ``|log(m / m0)|``) wins.
 
     Args:
         verts_cam: (V, 3) hand vertices in the object camera frame, metres.
