@@ -240,3 +240,52 @@ def test_depth_only_registration_keeps_the_hand_on_its_silhouette(hand):
     assert float((uv1 - uv0).norm(dim=-1).max()) < 1e-2
     assert torch.equal(st.delta.detach(), delta0) and out["shift_m"] == 0.0
     assert out["scale_factor"] != pytest.approx(1.0)
+
+
+@pytest.mark.slow
+def test_score_band_keeps_a_held_grasp_on_the_object(held_grasp):
+    """From the held grasp at its true depth, the stage scored by the contact band ends with
+    the contact zones on the surface at least as well as it began, and the score it records is
+    the band term; scored by the closest vertex, it backs the hand off instead (its contact
+    zones end farther from the surface)."""
+    from easyhoi.optim.contact import _touch
+
+    s, inp, scene, cam, m_gt = held_grasp
+    fast = get_preset("fast").optim
+    short = dict(max_iters=40, register_at=(10,), patience=10)
+    ends = {}
+    for score_band in (True, False):
+        cfg = replace(fast, contact=replace(fast.contact, score_band=score_band, **short))
+        p, _, _ = initial_hand(scene, inp, cam, fast.render_size, cfg.contact)
+        st = ContactState(scene, p, cam, m_gt)
+        start = _touch(scene, st.verts_obj().detach(), 48, 0.02)
+        res = fit_contact(scene, st, cfg.contact, cfg)
+        v = s.hand_model(res.hand_params).vertices[0].detach() / res.metric_scale
+        ends[score_band] = _touch(scene, v, 48, 0.02)
+        if score_band:
+            assert ends[True] <= start + 1e-6
+            assert abs(res.metric_scale / m_gt - 1) < 0.1
+    assert ends[True] < ends[False], ends
+
+
+def test_contact_band_term_sees_a_hand_off_the_object(hand):
+    """The band term is the naive mean of min(|d|, band) / band over the contact zones, plus,
+    when no contact zone lies in the band, the closest one's distance beyond it (in bands): a
+    hand moved off the object scores worse the farther it is, where the band term alone is
+    flat (every contact zone clamped; the toy hand touches with one vertex outside the contact
+    zones, so none is in the band even at its true place)."""
+    from easyhoi.optim.contact import _touch
+
+    sc, scene, _, _ = _setup("box", hand)
+    gt = _gt_verts(sc, hand)
+    away = gt.mean(0) - scene.center
+    away = away / away.norm()
+    band, scores = 0.02, []
+    for shift in (0.0, 0.1, 0.2, 0.3):  # normalised object units
+        v = gt + shift * scene.extent * away
+        got = _touch(scene, v, 48, band)
+        d = scene.sdf(v, 48)[scene.regions.contact_vertices].abs().tolist()
+        naive = sum(min(x, band) for x in d) / len(d) / band + max(min(d) - band, 0.0) / band
+        assert got == pytest.approx(naive, rel=1e-5)
+        scores.append(got)
+    assert scores[0] < scores[1] < scores[2] < scores[3], scores

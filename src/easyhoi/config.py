@@ -195,8 +195,9 @@ class ContactStageConfig:
     one nearest the current depth wins (0 = the best score)."""
     scan_band: float = 0.0
     """Depth scan touching term: 0 = the closest hand vertex's distance to the surface; > 0 =
-    the mean over the contact-zone vertices of min(|d|, scan_band) / scan_band (d in normalised
-    object units: the grasp's contact zones on the surface)."""
+    the mean over the contact-zone vertices of min(|d|, scan_band) / scan_band, plus the closest
+    one's distance beyond the band (in bands) when none lies in it (d in normalised object
+    units: the grasp's contact zones on the surface)."""
 
     depth_only_registration: bool = False
     """Apply only the depth part of each registration's translation (as a change of the metric
@@ -204,6 +205,10 @@ class ContactStageConfig:
     initial_competes: bool = False
     """The state the stage starts from competes for the best state (False = the paper's: only
     states from the first registration on)."""
+    score_band: bool = False
+    """The best-state score measures touching with the depth scan's contact-band term (the
+    contact zones on the surface, scan_band) instead of the closest vertex's distance to it;
+    used only when scan_band > 0."""
 
     def __post_init__(self):
         _finite(self)
@@ -490,6 +495,11 @@ _FAST = EasyHOIConfig(
             # the start (already placed at the scanned depth) competes for the best state, so
             # the stage never ends worse by its own score than it began
             initial_competes=True,
+            # the best state is judged by the scan's own touching term (contact zones on the
+            # surface), not by the closest vertex: with the estimator's articulation, the rigid
+            # hand whose deepest vertex just touches is a hand backed off the object, which
+            # then holds nothing
+            score_band=True,
         ),
         refine=RefineStageConfig(
             max_iters=100,

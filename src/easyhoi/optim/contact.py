@@ -40,9 +40,13 @@ Loop (Adam, coarse-to-fine phases sharing ``max_iters``):
 Best state: the states from the first registration on compete (before it the depth is not
 yet aligned), including the state right after each depth scan (before its ICP move, which can
 be biased where the two surfaces differ in shape, e.g. a flat palm behind a cylinder); the
-score is ``IoU loss + rotation prior + contact distance``, the contact distance being
+score is ``IoU loss + rotation prior + touching term``: by default the contact distance
 ``|min_v d(v)|`` over the hand vertices in normalised object units (0 when the hand touches
-the surface without penetrating it). Stopping: IoU loss < ``stop_loss`` once every registration
+the surface without penetrating it); with ``score_band`` the depth scan's contact-band term
+(:func:`scan_scale`), so that the stage and its scans judge depth by the same criterion. The
+closest-vertex distance favours the rigid hand whose single deepest vertex grazes the surface:
+with the estimator's articulation (about 1 cm off) that hand is backed off the object, its
+fingers no longer on it. Stopping: IoU loss < ``stop_loss`` once every registration
 that fits under ``max_iters`` ran, or ``patience`` iterations without improvement after the last
 registration, or ``max_iters``.
 """
@@ -155,7 +159,11 @@ def _touch(scene: Scene, verts_obj: torch.Tensor, sdf_resolution: int, band: flo
     with torch.no_grad():
         d = scene.sdf(verts_obj, sdf_resolution)
         if band > 0:
-            return float(d[scene.regions.contact_vertices].abs().clamp_max(band).mean()) / band
+            near = d[scene.regions.contact_vertices].abs()
+            # no contact zone in the band: the band term is flat, so the closest one's distance
+            # beyond the band tells a hand resting near the object from one far off it
+            beyond = max(float(near.min()) - band, 0.0)
+            return (float(near.clamp_max(band).mean()) + beyond) / band
         return abs(float(d.min()))
 
 
@@ -178,10 +186,12 @@ def scan_scale(
     ``|min_v d(v)|`` (some hand vertex on the surface); with ``band > 0``, the mean over the
     contact-zone vertices of ``min(|d(v)|, band) / band`` (the palmar contact zones lie on the
     surface: too shallow they float, too deep they sink in; one touching fingertip is not
-    enough). The depth where the photo's occlusions hold and the hand grasps the surface. Where the
-    photo cannot tell depths apart (the hand beside the object touches it at several depths),
-    candidates within ``tie_margin`` of the best score tie and the one nearest ``m0`` (smallest
-    ``|log(m / m0)|``) wins.
+    enough), plus, when no contact-zone vertex lies within the band, the closest one's distance
+    beyond it in bands (the band term alone is flat there and cannot tell a hand resting near
+    the object from one far off it). The depth where the photo's occlusions hold and the hand
+    grasps the surface. Where the photo cannot tell depths apart (the hand beside the object
+    touches it at several depths), candidates within ``tie_margin`` of the best score tie and
+    the one nearest ``m0`` (smallest ``|log(m / m0)|``) wins.
 
     Args:
         verts_cam: (V, 3) hand vertices in the object camera frame, metres.
@@ -308,6 +318,8 @@ def fit_contact(
     sdf_res = optim_cfg.refine.sdf_resolution
     due = [r for r in cfg.register_at if r < cfg.max_iters]
     registrations: list[dict] = []
+    # the touching part of the score: the scan's contact band, or the closest vertex
+    score_band = cfg.scan_band if cfg.score_band else 0.0
 
     def begin(frac):
         h, w = scene.render_size(frac, optim_cfg.render_size)
@@ -326,7 +338,7 @@ def fit_contact(
             v = state.verts_obj()
             _, vis, _ = scene.hand_silhouettes(v, cam)
             scan = float(soft_iou_loss(vis, masks["hand"])) + float(_rot_prior(state, cfg))
-            loop.offer(scan + _touch(scene, v, sdf_res, 0.0), state.state(), it)
+            loop.offer(scan + _touch(scene, v, sdf_res, score_band), state.state(), it)
         D, anchor, info = register_contacts(scene, v, cam, masks, cfg)
         info["scan_scale_factor"] = state.m / m_before
         info["iter"] = it
@@ -346,7 +358,7 @@ def fit_contact(
         _, visible, _ = scene.hand_silhouettes(verts, cam)
         iou = soft_iou_loss(visible, masks["hand"])
         loss = iou
-        cdist = _touch(scene, verts.detach(), sdf_res, 0.0)
+        cdist = _touch(scene, verts.detach(), sdf_res, score_band)
         terms = {"iou": float(iou.detach()), "contact_dist": cdist}
         if cfg.rotation_prior_weight > 0:
             prior = _rot_prior(state, cfg)
