@@ -8,11 +8,15 @@ skin model of *this* photo and *this* hand; a region that matches it is skin (th
 forearm, the other hand or a face), not a held object.
 
 Hand mask M_h (GrabCut seeded by the skeleton):
-  * L = palm length (wrist -> middle MCP). Bones drawn ``0.3 L`` wide and the palm polygon
-    (wrist, thumb CMC, index/middle/ring/pinky MCP) filled: "probably foreground".
+  * L = palm length (wrist -> middle MCP); S = hand scale, the larger of L and the palm width
+    (index MCP -> pinky MCP) / ``PALM_WIDTH_RATIO`` (:func:`hand_scale`). A palm tilted about
+    its width looks short while the fingers keep their width; one tilted about its length looks
+    narrow: the larger of the two is the less foreshortened measure of the hand's size.
+  * Bones drawn ``0.3 S`` wide and the palm polygon (wrist, thumb CMC, index/middle/ring/pinky
+    MCP) filled: "probably foreground".
   * Thin bone cores (``0.08 L``) and the eroded palm that match the colour model: "sure
     foreground" (occluded fingers drawn over an object do not match and stay "probable").
-    Farther than ``HAND_REACH`` L from the wide skeleton: "sure background".
+    Farther than ``HAND_REACH`` S from the wide skeleton: "sure background".
   * GrabCut refines; the component(s) overlapping the cores are kept, and the forearm is cut at
     ``0.25 L`` behind the wrist (the hand model ends at the wrist).
 """
@@ -30,14 +34,24 @@ PALM = (0, 1, 5, 9, 13, 17)
 SKIN_D2 = 9.0
 #: Looser bound (4 sigma) a hand-mask pixel must meet: shading and blur widen the hand's colours.
 SKIN_LOOSE = 16.0
-#: Farthest a hand pixel lies outside the 0.3 L wide skeleton, in palm lengths: a finger is about
-#: 0.2 L wide, so this leaves room for keypoint error without taking in a held object.
-HAND_REACH = 0.3
+#: Farthest a hand pixel lies outside the 0.3 S wide skeleton, in hand scales S: a finger is
+#: about 0.2 S wide and the keypoints of a blurred or partly hidden finger are off by up to a
+#: finger's width; a held object next to the fingers is kept out by the colour bound instead.
+HAND_REACH = 0.5
+#: Palm width (index MCP -> pinky MCP) / palm length (wrist -> middle MCP) of an adult hand
+#: seen square to the camera (about 0.75-0.85); the upper end, so S never exceeds the true size.
+PALM_WIDTH_RATIO = 0.85
 
 
 def palm_length(kp: np.ndarray) -> float:
     """Wrist-to-middle-MCP distance of (21, 2) keypoints (floored at 1 px)."""
     return max(1.0, float(np.linalg.norm(kp[9] - kp[0])))
+
+
+def hand_scale(kp: np.ndarray) -> float:
+    """Size of the hand in px: the larger of the palm length and the palm width /
+    ``PALM_WIDTH_RATIO`` of (21, 2) keypoints (see the module docstring)."""
+    return max(palm_length(kp), float(np.linalg.norm(kp[5] - kp[17])) / PALM_WIDTH_RATIO)
 
 
 def draw_skeleton(shape: tuple[int, int], kp: np.ndarray, width: float, palm: bool) -> np.ndarray:
@@ -124,12 +138,12 @@ def hand_mask(
     object's colours from them and keeps a skin-coloured object the fingers cover out of the
     hand."""
     shape = img.shape[:2]
-    L = palm_length(kp)
+    L, S = palm_length(kp), hand_scale(kp)
     core = draw_skeleton(shape, kp, 0.08 * L, palm=False)
-    wide = draw_skeleton(shape, kp, 0.3 * L, palm=True)
+    wide = draw_skeleton(shape, kp, 0.3 * S, palm=True)
     dist = cv2.distanceTransform((~wide).astype(np.uint8), cv2.DIST_L2, 5)
     init = np.full(shape, cv2.GC_PR_BGD, np.uint8)
-    init[dist > HAND_REACH * L] = cv2.GC_BGD
+    init[dist > HAND_REACH * S] = cv2.GC_BGD
     init[wide] = cv2.GC_PR_FGD
     init[wide & (d2 > 25.0)] = cv2.GC_PR_BGD
     palm_core = cv2.erode(
