@@ -114,6 +114,23 @@ def test_object_under_the_fingers_is_not_taken():
     assert iou(m, truth) >= 0.85
 
 
+def test_pale_neutral_object_over_the_fingers_is_kept_out(monkeypatch):
+    """A grey-white bar (a phone screen, a paper) in front of the fingers, with the lightness of
+    the skin: the joint colour bound lets it in (the lightness spread is wide for shading), the
+    chroma bound keeps it out; only the bone cores drawn across it stay."""
+    bar = np.zeros((240, 240), bool)
+    bar[118:150, 40:190] = True
+    img, hand = drawn_hand(KP, 13)
+    img[bar] = (200, 195, 190)
+    truth = hand & ~bar
+    m = run(img, KP)
+    assert (m & bar).sum() <= 0.15 * bar.sum()
+    assert iou(m, truth) >= 0.85
+    monkeypatch.setattr(skin.ColourModel, "chroma_d2", lambda self, lab: np.zeros(lab.shape[:2]))
+    without = run(img, KP)
+    assert (without & bar).sum() >= 0.5 * bar.sum()
+
+
 # -- development photos -----------------------------------------------------------------------
 
 

@@ -17,8 +17,9 @@ Hand mask M_h (GrabCut seeded by the skeleton):
   * Thin bone cores (``0.08 L``) and the eroded palm that match the colour model: "sure
     foreground" (occluded fingers drawn over an object do not match and stay "probable").
     Farther than ``HAND_REACH`` S from the wide skeleton: "sure background".
-  * GrabCut refines; the component(s) overlapping the cores are kept, and the forearm is cut at
-    ``0.25 L`` behind the wrist (the hand model ends at the wrist).
+  * GrabCut refines; pixels farther than 4 sigma from the colour model, or 3 sigma in chroma
+    alone, are dropped (bone cores excepted); the component(s) overlapping the cores are kept,
+    and the forearm is cut at ``0.25 L`` behind the wrist (the hand model ends at the wrist).
 """
 
 from __future__ import annotations
@@ -91,6 +92,10 @@ class ColourModel:
         """Squared normalised distance of every pixel to the model (< SKIN_D2: skin)."""
         return (((lab - self.mu) / self.sigma) ** 2).sum(-1)
 
+    def chroma_d2(self, lab: np.ndarray) -> np.ndarray:
+        """Squared normalised distance in chroma (a*, b*) alone."""
+        return (((lab[..., 1:] - self.mu[1:]) / self.sigma[1:]) ** 2).sum(-1)
+
 
 def skin_model(lab: np.ndarray, kp: np.ndarray) -> ColourModel:
     """The colour model of the hand with (21, 2) keypoints in a Lab image."""
@@ -156,8 +161,12 @@ def hand_mask(
     fg = grabcut(img, init, iterations, seed)
     # GrabCut's colour mixture also takes an object the fingers press on when its colour is
     # closer to the hand's than to the crop's background; the hand is skin wherever it is not
-    # drawn over something (the bone cores are kept: a finger may cross an object)
-    fg &= (d2 < SKIN_LOOSE) | core | palm_core
+    # drawn over something (the bone cores are kept: a finger may cross an object). Shading
+    # moves a hand's colours along lightness, so the lightness spread is wide; the chroma of
+    # skin stays, and a pale neutral surface (paper, a screen, a white cup) that passes the
+    # joint bound on its lightness is still off the hand's chroma
+    skin = (d2 < SKIN_LOOSE) & (skin_model(lab, kp).chroma_d2(lab) < SKIN_D2)
+    fg &= skin | core | palm_core
     if not_hand is not None:
         fg &= ~not_hand
     fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
