@@ -342,7 +342,7 @@ def test_local_pool_recovers_when_the_pool_breaks_between_submissions(monkeypatc
         def shutdown(self, wait=True, cancel_futures=False):
             pass
 
-    monkeypatch.setattr(dist, "_new_pool", lambda workers, threads, ctx: FlakyPool())
+    monkeypatch.setattr(dist, "_new_pool", lambda workers, threads, ctx, preload=(): FlakyPool())
     tasks = [Task(f"p{i}.png", f"p{i}.png", "out", i) for i in range(5)]
     results = list(dist.execute(tasks, _echo_worker, engine="local", workers=2, threads=1))
     assert sorted(r.key for r in results) == [t.key for t in tasks]

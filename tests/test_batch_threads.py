@@ -42,3 +42,38 @@ def test_batch_workers_default_to_the_cores(tmp_path):
     # several photos given to reconstruct run inline in the one process
     args = parser.parse_args(["reconstruct", "a.jpg", "b.jpg", "--out", "o"])
     assert _batch_workers(args) == 1
+
+
+_PRELOAD = """
+import json, sys
+from easyhoi.distributed import Task, execute
+from tests.test_batch_threads import PreloadProbe
+tasks = [Task(f"p{i}", f"p{i}.jpg", f"out/p{i}", i) for i in range(2)]
+print(json.dumps([r.info for r in execute(tasks, PreloadProbe(), engine="local", workers=2)]))
+"""
+
+
+class PreloadProbe:
+    """Reports whether the module it asks the fork server to preload was there before it ran."""
+
+    preload = ("colorsys",)  # a standard module nothing else here imports
+
+    def __call__(self, task: Task) -> dict:
+        import sys
+
+        return {"preloaded": "colorsys" in sys.modules, "pid": os.getpid()}
+
+
+@pytest.mark.slow  # a fresh interpreter (its own fork server) and two workers: about 5 s
+def test_workers_start_with_the_modules_their_worker_preloads():
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", _PRELOAD], capture_output=True, text=True,
+                         cwd=root, timeout=120)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    infos = json.loads(out.stdout.strip().splitlines()[-1])
+    assert len(infos) == 2 and all(i["preloaded"] for i in infos)

@@ -673,6 +673,23 @@ class ReconstructWorker:
             nothing.
     """
 
+    #: Imported by the local engine's fork server before it forks the worker processes
+    #: (:mod:`easyhoi.distributed`): torch, the pipeline's own modules, trimesh and the part
+    #: of torch that the hand fit's batched Jacobian imports on first use (sympy), about 2.3 s
+    #: of CPU that every worker would otherwise spend on its own. The native perception and
+    #: kernel libraries (MediaPipe, OpenCV, numba) are imported by each worker itself, after
+    #: the fork, so that no native library state is shared between processes.
+    preload = (
+        "torch",
+        "torch.fx.experimental.symbolic_shapes",
+        "trimesh",
+        "easyhoi.pipeline",
+        "easyhoi.perception.chain",
+        "easyhoi.optim.run",
+        "easyhoi.result_folder",
+        "easyhoi.viz.report",
+    )
+
     def __init__(self, settings=None, prompts=None, strict: bool = False):
         self.settings = settings
         self.prompts = dict(prompts or {})
@@ -693,13 +710,15 @@ class ReconstructWorker:
     def __call__(self, task: Task) -> dict:
         """Reconstruct one photo into ``task.output``.
 
-        Returns timing, file count, and what the user must hear about perception:
+        Returns timing (``seconds`` of wall time, ``cpu_seconds`` of this process's CPU time,
+        first-use imports included), file count, and what the user must hear about perception:
         ``notes`` (the hand used is not the first detected) and ``warnings`` (low confidence).
         """
         from easyhoi.perception.feedback import hand_choice_note, low_confidence_lines
         from easyhoi.pipeline import reconstruct_photo
         from easyhoi.settings import RunSettings, resolve_run
 
+        cpu0 = time.process_time()
         if not isinstance(self.settings, RunSettings):
             self.settings = resolve_run(self.settings)
         prompts = self.prompts.get(task.key)
@@ -709,6 +728,7 @@ class ReconstructWorker:
         prompted = prompts is not None and prompts.has_object_prompt
         return {
             "seconds": round(float(rec.seconds), 3), "files": len(rec.files),
+            "cpu_seconds": round(time.process_time() - cpu0, 3),
             "notes": [note] if note else [],
             "warnings": low_confidence_lines(rec.perception, "batch", prompted),
         }  # fmt: skip

@@ -300,15 +300,26 @@ def _check_picklable(worker) -> None:
 # ----------------------------------------------------------------------------------------------
 
 
-def _new_pool(workers: int, threads: int, mp_context: str) -> ProcessPoolExecutor:
+def _new_pool(
+    workers: int, threads: int, mp_context: str, preload: tuple[str, ...] = ()
+) -> ProcessPoolExecutor:
     ctx = multiprocessing.get_context(mp_context)
     if mp_context == "forkserver":
-        # imported once by the fork server (only applies when it starts)
-        ctx.set_forkserver_preload(["easyhoi.distributed"])
+        # imported once by the fork server (only applies when it starts), so every worker
+        # forked from it starts with them: the worker's ``preload`` modules (torch and the
+        # pipeline for the reconstruction worker) cost their import CPU once per batch instead
+        # of once per worker process. A module that fails to import is skipped there.
+        ctx.set_forkserver_preload(["easyhoi.distributed", *preload])
     return ProcessPoolExecutor(
         max_workers=workers, mp_context=ctx, initializer=_init_worker,
         initargs=(threads, os.getpid()),
     )  # fmt: skip
+
+
+def _preload(worker) -> tuple[str, ...]:
+    """Modules a worker asks the fork server to import (its ``preload`` attribute, if any)."""
+    names = getattr(worker, "preload", ())
+    return tuple(n for n in names if isinstance(n, str))
 
 
 def _init_worker(threads: int | None, batch_pid: int) -> None:
@@ -330,7 +341,7 @@ def _iter_local(
     try:
         while pending or suspects or inflight:
             if pool is None:
-                pool = _new_pool(workers, threads, mp_context)
+                pool = _new_pool(workers, threads, mp_context, _preload(worker))
             source, limit = (suspects, 1) if suspects else (pending, workers)
             broken_on_submit = False
             while source and len(inflight) < limit:

@@ -1,7 +1,9 @@
 """Pictures of a reconstruction: shaded overlays, other viewpoints, stages, masks, loss curves.
 
 Everything renders on the CPU with the project's own hard rasterizer
-(:mod:`easyhoi.render.raster`) and matplotlib's Agg canvas; no OpenGL, no pyplot state.
+(:mod:`easyhoi.render.raster`); the figures (views, stages, masks) are composed and the loss
+curves drawn with Pillow (:mod:`easyhoi.viz.compose`, :mod:`easyhoi.viz.chart`); no OpenGL,
+no matplotlib (:func:`easyhoi.viz.plots.new_figure` serves the benchmark's tables).
 Functions named ``*_png`` return PNG bytes (write them with :mod:`easyhoi.io.atomic`).
 """
 

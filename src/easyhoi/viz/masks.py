@@ -14,6 +14,7 @@ import torch
 from easyhoi.errors import InvalidInputError
 from easyhoi.hoi import HOIInput, HOIResult
 from easyhoi.render.raster import depth_map
+from easyhoi.viz.compose import Panel, compose_grid
 from easyhoi.viz.overlay import (
     _check_result,
     photo_camera,
@@ -21,9 +22,12 @@ from easyhoi.viz.overlay import (
     result_meshes,
     shrink_photo,
 )
-from easyhoi.viz.plots import FIGURE_DPI, figure_png, new_figure
+from easyhoi.viz.plots import png_bytes
 
-__all__ = ["MASK_PAIRS", "mask_iou", "mask_ious", "masks_png", "rendered_masks"]
+__all__ = ["MASK_PAIRS", "PANEL_WIDTH", "mask_iou", "mask_ious", "masks_png", "rendered_masks"]
+
+#: Width in pixels of each panel of ``masks.png``.
+PANEL_WIDTH = 320
 
 #: (input mask attribute of HOIInput, rendered mask key, label) compared in the figure.
 MASK_PAIRS = (
@@ -89,43 +93,24 @@ def masks_png(result: HOIResult, inp: HOIInput, full_size: bool = False) -> byte
     """Figure: top row photo and input masks, bottom row overlay and input-vs-rendered maps.
 
     Bottom-row colours: green where both masks agree, red for input only, blue for rendered
-    only; each title gives the IoU (computed at the input's size). The overlay is drawn at the
-    panel's size in the figure, or at the photo's size with ``full_size``.
+    only; each title gives the IoU (computed at the input's size). The panels are
+    :data:`PANEL_WIDTH` pixels wide; the overlay is drawn at that width, or at the photo's size
+    with ``full_size`` (then downscaled into its panel).
     """
-    from matplotlib.patches import Patch
-
     result = _check_result(result)
     if not isinstance(inp, HOIInput):
         raise InvalidInputError(f"expected an HOIInput, got {type(inp).__name__}")
     H, W = inp.size
     rendered = rendered_masks(result, H, W)
-    panel_w = 3.2
-    panel_h = panel_w * H / W
-    fig = new_figure(panel_w * 4, 2 * (panel_h + 0.6) + 1.0)
-    fig.suptitle(
-        "Input masks (top) vs masks rendered from the reconstruction (bottom)", fontsize=12
-    )
-    top = [("input photo", inp.image, None)]
-    top += [(f"input {label}", getattr(inp, i), "gray") for i, _, label in MASK_PAIRS]
-    photo = shrink_photo(inp.image, None if full_size else round(panel_w * FIGURE_DPI))
-    bottom = [("reconstruction overlay", render_overlay(result, photo).image, None)]
+    panels = [Panel(inp.image, "input photo")]
+    panels += [Panel(getattr(inp, i), f"input {label}") for i, _, label in MASK_PAIRS]
+    photo = shrink_photo(inp.image, None if full_size else PANEL_WIDTH)
+    panels.append(Panel(render_overlay(result, photo).image, "reconstruction overlay"))
     for i, r, label in MASK_PAIRS:
         iou = mask_iou(getattr(inp, i), rendered[r])
         name = r.replace("_", " ")
         title = f"rendered {name} vs {label.split()[-1]}\nIoU {iou:.3f}"
-        bottom.append((title, _compare(getattr(inp, i), rendered[r]), None))
-    for k, (title, img, cmap) in enumerate(top + bottom):
-        ax = fig.add_subplot(2, 4, k + 1)
-        kw = dict(cmap=cmap, vmin=0, vmax=1) if cmap else {}
-        ax.imshow(img, interpolation="nearest", **kw)
-        ax.set_title(title, fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    handles = [
-        Patch(color=np.array(_BOTH) / 255, label="both"),
-        Patch(color=np.array(_INPUT_ONLY) / 255, label="input only"),
-        Patch(color=np.array(_RENDER_ONLY) / 255, label="rendered only"),
-    ]
-    fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=9, frameon=False)
-    fig.subplots_adjust(left=0.01, right=0.99, top=0.86, bottom=0.08, wspace=0.05, hspace=0.32)
-    return figure_png(fig)
+        panels.append(Panel(_compare(getattr(inp, i), rendered[r]), title))
+    legend = [("both", _BOTH), ("input only", _INPUT_ONLY), ("rendered only", _RENDER_ONLY)]
+    title = "Input masks (top) vs masks rendered from the reconstruction (bottom)"
+    return png_bytes(compose_grid(panels, 4, PANEL_WIDTH, title=title, legend=legend))

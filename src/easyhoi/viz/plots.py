@@ -1,9 +1,8 @@
-"""Figure helpers (PNG encoding without pyplot's global state) and the loss-curve plot."""
+"""PNG encoding, a matplotlib figure without pyplot's global state, and the loss curves."""
 
 from __future__ import annotations
 
 import io
-import math
 
 import numpy as np
 
@@ -13,15 +12,13 @@ from easyhoi.hoi import HOIResult
 __all__ = [
     "FIGURE_DPI",
     "PNG_COMPRESS_LEVEL",
-    "figure_png",
-    "fixed_margins",
     "losses_png",
     "new_figure",
     "png_bytes",
     "stage_loss_series",
 ]
 
-#: Pixels per inch of every figure (a panel of 3.6 inches is 360 pixels wide).
+#: Pixels per inch of the matplotlib figures (:func:`new_figure`).
 FIGURE_DPI = 100
 #: zlib level of every PNG written (0-9). Level 1 encodes the pictures several times faster
 #: than the default 6 for files about a third larger; the bytes are the same at every run.
@@ -48,14 +45,6 @@ def new_figure(width_in: float, height_in: float):
     fig = Figure(figsize=(width_in, height_in), dpi=FIGURE_DPI)
     FigureCanvasAgg(fig)
     return fig
-
-
-def figure_png(fig) -> bytes:
-    """PNG bytes of a Figure (deterministic: no timestamp metadata)."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=FIGURE_DPI, metadata={"Software": None},
-                pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})  # fmt: skip
-    return buf.getvalue()
 
 
 def stage_loss_series(losses: list[dict]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -96,67 +85,33 @@ def losses_png(result: HOIResult) -> bytes:
 
     Non-positive and non-finite values are left out of the log plot. Stages without a history
     (e.g. "initial") get no panel; they are listed under the title. ``"total"`` is drawn thick
-    and black.
+    and black. The panels are drawn with Pillow (:mod:`easyhoi.viz.chart`).
     """
+    from easyhoi.viz.chart import Series, log_chart
+    from easyhoi.viz.compose import Panel, compose_grid
+
     if not isinstance(result, HOIResult):
         raise InvalidInputError(f"expected an HOIResult, got {type(result).__name__}")
     stages = [s for s in result.stages if stage_loss_series(s.losses)[1]]
     skipped = [s.name for s in result.stages if not any(s is t for t in stages)]
-    n = max(1, len(stages))
-    cols = min(n, 4)
-    rows = math.ceil(n / cols)
-    fig = new_figure(4.2 * cols, 3.3 * rows + 0.4)
     title = "Loss curves per stage (log scale)"
     if skipped:
         title += f"\nno loss history: {', '.join(skipped)}"
-    fig.suptitle(title, fontsize=11)
-    if not stages:
-        ax = fig.add_subplot(1, 1, 1)
-        ax.axis("off")
-        ax.text(0.5, 0.5, "no loss history recorded", ha="center", va="center")
-        return figure_png(fig)
-    for i, st in enumerate(stages):
-        ax = fig.add_subplot(rows, cols, i + 1)
+    panels = []
+    for st in stages:
         # no seconds in a picture: the pictures are the same bytes at every run of a seed (the
         # report's stage table gives the times)
-        title = f"{st.name}: {st.iterations} it"
+        name = f"{st.name}: {st.iterations} it"
         if st.stop_reason:
-            title += f"\nstop: {st.stop_reason}"
-        ax.set_title(title, fontsize=9)
+            name += f"\nstop: {st.stop_reason}"
         x, series = stage_loss_series(st.losses)
-        drawn = 0
-        for k, y in series.items():
-            ok = np.isfinite(y) & (y > 0)
-            if not ok.any():
-                continue
-            style = dict(color="black", lw=2.2, zorder=3) if k == "total" else dict(lw=1.3)
-            ax.plot(x[ok], y[ok], label=k, marker="." if ok.sum() < 12 else None, **style)
-            drawn += 1
-        if drawn:
-            ax.set_yscale("log")
-            ax.legend(fontsize=7, loc="best")
-            ax.grid(True, which="both", alpha=0.3)
-        else:
-            ax.text(0.5, 0.5, "no loss history", ha="center", va="center", transform=ax.transAxes)
-            ax.set_yticks([])
-        ax.set_xlabel("iteration", fontsize=8)
-        ax.tick_params(which="both", labelsize=7)
-    top = 1.0 if skipped else 0.8  # the suptitle's lines and two lines of panel title
-    fixed_margins(fig, left=0.6, right=0.2, top=top, bottom=0.45, wspace=0.55, hspace=0.95)
-    return figure_png(fig)
+        curves = {k: Series(x, y, thick=k == "total") for k, y in series.items()}
+        panels.append(Panel(log_chart(curves, _CHART_W, _CHART_H, name, "iteration")))
+    if not panels:
+        panels = [Panel(log_chart({}, _CHART_W, _CHART_H, empty_text="no loss history recorded"))]
+    cols = min(len(panels), 4)
+    return png_bytes(compose_grid(panels, cols, _CHART_W, title=title))
 
 
-def fixed_margins(fig, *, left, right, top, bottom, wspace, hspace) -> None:
-    """Place a figure's subplot grid with margins and gaps given in inches.
-
-    A fixed layout instead of ``tight_layout``, which draws the whole figure once more to
-    measure its texts (about a third of a figure's cost); the margins hold the titles and tick
-    labels the figures of this package use.
-    """
-    w, h = fig.get_size_inches()
-    grid = fig.axes[0].get_subplotspec().get_gridspec() if fig.axes else None
-    rows, cols = grid.get_geometry() if grid is not None else (1, 1)
-    ax_w = max((w - left - right - wspace * (cols - 1)) / cols, 1e-3)
-    ax_h = max((h - top - bottom - hspace * (rows - 1)) / rows, 1e-3)
-    fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
-                        wspace=wspace / ax_w, hspace=hspace / ax_h)  # fmt: skip
+#: Size in pixels of one stage's panel in ``losses.png``.
+_CHART_W, _CHART_H = 420, 320

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from easyhoi.hoi import HOIResult
+from easyhoi.viz.compose import Panel, compose_grid
 from easyhoi.viz.overlay import (
     _check_image,
     _check_result,
@@ -15,17 +14,12 @@ from easyhoi.viz.overlay import (
     shrink_photo,
     stage_meshes,
 )
-from easyhoi.viz.plots import (
-    FIGURE_DPI,
-    figure_png,
-    fixed_margins,
-    new_figure,
-    stage_loss_series,
-)
+from easyhoi.viz.plots import png_bytes, stage_loss_series
 
-__all__ = ["render_stages", "stages_png"]
+__all__ = ["PANEL_WIDTH", "render_stages", "stages_png"]
 
-_PANEL_IN = 3.6
+#: Width in pixels of each stage's panel in ``stages.png``.
+PANEL_WIDTH = 360
 
 
 def render_stages(
@@ -76,36 +70,21 @@ def stages_png(
 ) -> bytes:
     """One figure with an overlay panel per stage, titled with the stage's final loss.
 
-    The overlays are drawn at the panels' size in the figure (``_PANEL_IN`` inches at the
-    figure's resolution), or at the photo's size with ``full_size``.
+    The overlays are drawn at the panels' width (:data:`PANEL_WIDTH` pixels), or at the
+    photo's size with ``full_size`` (then downscaled into the same panels).
     """
-    from matplotlib.patches import Patch
-
-    panel_px = None if full_size else round(_PANEL_IN * FIGURE_DPI)
-    panels = render_stages(result, image, hand_model, width=panel_px)
+    panels = render_stages(result, image, hand_model, width=None if full_size else PANEL_WIDTH)
     stages = {s.name: s for s in result.stages}
-    n = len(panels)
-    cols = min(n, 4)
-    rows = math.ceil(n / cols)
-    H, W = image.shape[:2]
-    panel_h = _PANEL_IN * H / W
-    fig = new_figure(_PANEL_IN * cols, (panel_h + 0.75) * rows + 0.6)
-    fig.suptitle("Optimization stages (meshes over the photo)", fontsize=12)
+    shown = []
     for i, (name, img, note) in enumerate(panels):
-        ax = fig.add_subplot(rows, cols, i + 1)
-        ax.imshow(img, interpolation="lanczos")
         title = f"{i + 1}. {name}"
         summary = _summary(stages.get(name))
         if summary:
             title += f"\n{summary}"
         if note:
             title += f"\n({note})"
-        ax.set_title(title, fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    meshes = result_meshes(result)
-    handles = [Patch(color=np.array(m.color) / 255, label=m.name) for m in meshes]
-    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=9, frameon=False)
-    # the suptitle and up to three lines of panel title above each row, the legend below
-    fixed_margins(fig, left=0.05, right=0.05, top=0.95, bottom=0.3, wspace=0.1, hspace=0.7)
-    return figure_png(fig)
+        shown.append(Panel(img, title))
+    legend = [(m.name, m.color) for m in result_meshes(result)]
+    fig = compose_grid(shown, 4, PANEL_WIDTH, title="Optimization stages (meshes over the photo)",
+                       legend=legend)  # fmt: skip
+    return png_bytes(fig)

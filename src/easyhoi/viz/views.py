@@ -19,8 +19,9 @@ import numpy as np
 
 from easyhoi.hoi import HOIResult
 from easyhoi.structures import Camera
+from easyhoi.viz.compose import Panel, compose_grid
 from easyhoi.viz.overlay import _check_result, result_meshes
-from easyhoi.viz.plots import figure_png, new_figure
+from easyhoi.viz.plots import png_bytes
 from easyhoi.viz.shade import SceneMesh, render_shaded
 
 __all__ = ["VIEW_NAMES", "VIEW_SIZE", "render_views", "view_cameras", "views_png"]
@@ -92,20 +93,16 @@ def render_views(result: HOIResult, size: int | None = None) -> dict[str, np.nda
 
 
 def views_png(result: HOIResult, size: int | None = None) -> bytes:
-    """One PNG with the four views side by side, titled, with a colour legend."""
-    from matplotlib.patches import Patch
+    """One PNG with the four views side by side, titled, with a colour legend.
 
+    Each view is rendered ``size`` pixels square (default :data:`VIEW_SIZE`) and shown
+    :data:`VIEW_SIZE` pixels wide.
+    """
     views = render_views(result, size)
-    meshes = result_meshes(result)
-    fig = new_figure(3.2 * len(views), 3.75)
-    fig.suptitle("Reconstruction from other viewpoints (around the object centre)", fontsize=12)
-    for i, (name, img) in enumerate(views.items()):
-        ax = fig.add_subplot(1, len(views), i + 1)
-        ax.imshow(img, interpolation="lanczos")
-        ax.set_title(name, fontsize=11)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    handles = [Patch(color=np.array(m.color) / 255, label=m.name) for m in meshes]
-    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=10, frameon=False)
-    fig.subplots_adjust(left=0.01, right=0.99, top=0.84, bottom=0.09, wspace=0.04)
-    return figure_png(fig)
+    legend = [(m.name, m.color) for m in result_meshes(result)]
+    panels = [Panel(img, name) for name, img in views.items()]
+    fig = compose_grid(
+        panels, len(panels), VIEW_SIZE, legend=legend,
+        title="Reconstruction from other viewpoints (around the object centre)",
+    )  # fmt: skip
+    return png_bytes(fig)
