@@ -117,7 +117,9 @@ def test_object_under_the_fingers_is_not_taken():
 def test_pale_neutral_object_over_the_fingers_is_kept_out(monkeypatch):
     """A grey-white bar (a phone screen, a paper) in front of the fingers, with the lightness of
     the skin: the joint colour bound lets it in (the lightness spread is wide for shading), the
-    chroma bound keeps it out; only the bone cores drawn across it stay."""
+    chroma bound keeps it out. The reach is widened so that GrabCut alone takes the bar in (as it
+    does when the keypoints are far off); only the bone cores drawn across it may stay."""
+    monkeypatch.setattr(skin, "HAND_REACH", 0.5)
     bar = np.zeros((240, 240), bool)
     bar[118:150, 40:190] = True
     img, hand = drawn_hand(KP, 13)
@@ -137,8 +139,8 @@ def test_pale_neutral_object_over_the_fingers_is_kept_out(monkeypatch):
 @pytest.mark.slow
 def test_hand_masks_on_development_photos(shared_data):
     """Every detected hand's mask against the reference hand it overlaps most, per half of the
-    photos (split as in ``benchmarks/bench_perception.py``). Measured: mean IoU 0.72 (tune) and
-    0.64 (check) over 26 + 26 hands; bounds set a little below."""
+    photos (split as in ``benchmarks/bench_perception.py``). Measured: mean IoU 0.71 (tune) and
+    0.63 (check) over 26 + 26 hands; bounds set a little below."""
     from easyhoi.io.image import load_image
     from easyhoi.perception.masks import ClassicalHOISegmenter
     from easyhoi.perception.mediapipe_hand import MediaPipeHands

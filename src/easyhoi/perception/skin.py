@@ -36,9 +36,8 @@ SKIN_D2 = 9.0
 #: Looser bound (4 sigma) a hand-mask pixel must meet: shading and blur widen the hand's colours.
 SKIN_LOOSE = 16.0
 #: Farthest a hand pixel lies outside the 0.3 S wide skeleton, in hand scales S: a finger is
-#: about 0.2 S wide and the keypoints of a blurred or partly hidden finger are off by up to a
-#: finger's width; a held object next to the fingers is kept out by the colour bound instead.
-HAND_REACH = 0.5
+#: about 0.2 S wide, so this leaves room for keypoint error without taking in a held object.
+HAND_REACH = 0.3
 #: Palm width (index MCP -> pinky MCP) / palm length (wrist -> middle MCP) of an adult hand
 #: seen square to the camera (about 0.75-0.85); the upper end, so S never exceeds the true size.
 PALM_WIDTH_RATIO = 0.85
