@@ -12,11 +12,13 @@ Hand mask M_h (GrabCut seeded by the skeleton):
     (index MCP -> pinky MCP) / ``PALM_WIDTH_RATIO`` (:func:`hand_scale`). A palm tilted about
     its width looks short while the fingers keep their width; one tilted about its length looks
     narrow: the larger of the two is the less foreshortened measure of the hand's size.
-  * Bones drawn ``0.3 S`` wide and the palm polygon (wrist, thumb CMC, index/middle/ring/pinky
-    MCP) filled: "probably foreground".
+  * Bones drawn ``0.3 L`` wide and the palm polygon (wrist, thumb CMC, index/middle/ring/pinky
+    MCP) filled: "probably foreground" (kept narrow: GrabCut starts these pixels as hand, and an
+    object pressed against the fingers must not start as hand).
   * Thin bone cores (``0.08 L``) and the eroded palm that match the colour model: "sure
     foreground" (occluded fingers drawn over an object do not match and stay "probable").
-    Farther than ``HAND_REACH`` S from the wide skeleton: "sure background".
+    Farther than ``HAND_REACH`` S from the wide skeleton: "sure background" (in S: how far
+    GrabCut may grow the hand follows the hand's true size).
   * GrabCut refines; pixels farther than 4 sigma from the colour model, or 3 sigma in chroma
     alone, are dropped (bone cores excepted); the component(s) overlapping the cores are kept,
     and the forearm is cut at ``0.25 L`` behind the wrist (the hand model ends at the wrist).
@@ -35,7 +37,7 @@ PALM = (0, 1, 5, 9, 13, 17)
 SKIN_D2 = 9.0
 #: Looser bound (4 sigma) a hand-mask pixel must meet: shading and blur widen the hand's colours.
 SKIN_LOOSE = 16.0
-#: Farthest a hand pixel lies outside the 0.3 S wide skeleton, in hand scales S: a finger is
+#: Farthest a hand pixel lies outside the 0.3 L wide skeleton, in hand scales S: a finger is
 #: about 0.2 S wide, so this leaves room for keypoint error without taking in a held object.
 HAND_REACH = 0.3
 #: Palm width (index MCP -> pinky MCP) / palm length (wrist -> middle MCP) of an adult hand
@@ -144,7 +146,7 @@ def hand_mask(
     shape = img.shape[:2]
     L, S = palm_length(kp), hand_scale(kp)
     core = draw_skeleton(shape, kp, 0.08 * L, palm=False)
-    wide = draw_skeleton(shape, kp, 0.3 * S, palm=True)
+    wide = draw_skeleton(shape, kp, 0.3 * L, palm=True)
     dist = cv2.distanceTransform((~wide).astype(np.uint8), cv2.DIST_L2, 5)
     init = np.full(shape, cv2.GC_PR_BGD, np.uint8)
     init[dist > HAND_REACH * S] = cv2.GC_BGD
