@@ -16,11 +16,16 @@ Per scene, against the scanned mesh (metres):
 * ``cd_placed``, ``f10_placed``: as placed by the object step (metric size from the hand,
   position from the grip, no alignment);
 * ``scale_err``: ``|s - 1|`` for the scale ``s`` the alignment applies to the metric prediction;
+  it splits into ``scale_cue`` (the hand's image scale over the true one at the object's centre:
+  the part a perfect shape in pixels would keep) and ``scale_shape = s / scale_cue`` (the part
+  from the outline and the depth: amodal errors, foreshortening, thickness);
+* ``oracle`` (``--oracle``): every family fitted alone, its C.D.; ``oracle_cd`` is the best one
+  (what perfect selection would give) and ``oracle_shape`` its family;
 * the same C.D. / F-scores for two baselines, aligned the same way: a sphere of the object's
   volume (``sphere_*``) and the object's oriented bounding box (``box_*``, true proportions).
 
 Usage: ``python benchmarks/bench_object.py [--seeds 0 1] [--objects DIR] [--size 320]
-[--procedural] [--json OUT]``; prints a Markdown table and a summary.
+[--procedural] [--oracle] [--json OUT]``; prints a Markdown table and a summary.
 """
 
 from __future__ import annotations
@@ -130,7 +135,7 @@ def _placed(mesh: trimesh.Trimesh, K: np.ndarray) -> trimesh.Trimesh | None:
     return trimesh.Trimesh(np.stack([X, Y, Z], 1), mesh.faces, process=False)
 
 
-def run_scene(obj, seed: int, size: int, gt_amodal: bool = False) -> dict:
+def run_scene(obj, seed: int, size: int, gt_amodal: bool = False, oracle: bool = False) -> dict:
     import torch
 
     from easyhoi.perception.amodal import ClassicalAmodalSegmenter, amodal_prompts
@@ -148,11 +153,10 @@ def run_scene(obj, seed: int, size: int, gt_amodal: bool = False) -> dict:
     pts, box = amodal_prompts(sc.object_mask, seed=seed)
     amodal = ClassicalAmodalSegmenter().segment(inpainted, pts, box, sc.object_mask)
     amodal = (sc.object_amodal if gt_amodal else amodal) | sc.object_mask
+    kw = dict(visible_mask=sc.object_mask, hand_mask=sc.hand_mask, hand_keypoints2d=k2,
+              hand_keypoints3d=k3)  # fmt: skip
     t0 = time.perf_counter()
-    mesh = SilhouetteReconstructor().reconstruct(
-        inpainted, amodal, visible_mask=sc.object_mask, hand_mask=sc.hand_mask,
-        hand_keypoints2d=k2, hand_keypoints3d=k3,
-    )  # fmt: skip
+    mesh = SilhouetteReconstructor().reconstruct(inpainted, amodal, **kw)
     seconds = time.perf_counter() - t0
     md = mesh.metadata["easyhoi"]
     gt_world = sc.object.mesh
@@ -166,6 +170,21 @@ def run_scene(obj, seed: int, size: int, gt_amodal: bool = False) -> dict:
                                                                        ).sum())}  # fmt: skip
     a = _metrics(metric, gt_world, align=True)
     row.update(cd=a["cd"], f5=a["f5"], f10=a["f10"], scale_err=abs(a["scale"] - 1))
+    centre = gt_world.bounds.mean(0) @ R.T + t
+    px_true = float(cam.K[0, 0]) / float(centre[2])
+    row["scale_cue"] = md["hand_cues"]["px_per_m"] / px_true
+    row["scale_shape"] = a["scale"] / row["scale_cue"]
+    if oracle:
+        from easyhoi.perception.shapes import FAMILIES
+
+        fam = {}
+        for name in FAMILIES:
+            one = SilhouetteReconstructor(families=(name,)).reconstruct(inpainted, amodal, **kw)
+            one.vertices = np.asarray(one.vertices) * one.metadata["easyhoi"]["meters_per_unit"]
+            fam[name] = _metrics(one, gt_world, align=True)["cd"]
+        row["oracle"] = fam
+        row["oracle_shape"] = min(fam, key=fam.get)
+        row["oracle_cd"] = fam[row["oracle_shape"]]
     placed = _placed(mesh, cam.K.numpy())
     p = _metrics(placed, gt_cam, align=False)
     row.update(cd_placed=p["cd"], f10_placed=p["f10"])
@@ -176,8 +195,11 @@ def run_scene(obj, seed: int, size: int, gt_amodal: bool = False) -> dict:
 
 
 def _table(rows: list[dict]) -> str:
-    cols = ["object", "seed", "shape", "cd", "f5", "f10", "scale_err", "cd_placed",
-            "f10_placed", "box_cd", "box_f10", "sphere_cd", "sphere_f10", "seconds"]  # fmt: skip
+    cols = ["object", "seed", "shape", "cd", "f5", "f10", "scale_err", "scale_cue",
+            "scale_shape", "cd_placed", "f10_placed", "box_cd", "box_f10", "sphere_cd",
+            "sphere_f10", "seconds"]  # fmt: skip
+    if rows and "oracle" in rows[0]:
+        cols[3:3] = ["oracle_shape", "oracle_cd"]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
         cells = [f"{r[c]:.3f}" if isinstance(r[c], float) else str(r[c]) for c in cols]
@@ -190,10 +212,15 @@ def summarize(rows: list[dict]) -> dict:
     by = {}
     for r in rows:
         by.setdefault(r["object"], []).append(r)
-    per = {k: {c: float(np.mean([r[c] for r in v])) for c in ("cd", "f10", "box_cd",
-           "sphere_cd", "scale_err", "f5", "cd_placed")} for k, v in by.items()}  # fmt: skip
+    keys = ["cd", "f10", "box_cd", "sphere_cd", "scale_err", "f5", "cd_placed"]
+    keys += ["oracle_cd"] if all("oracle_cd" in r for r in rows) else []
+    per = {k: {c: float(np.mean([r[c] for r in v])) for c in keys} for k, v in by.items()}
     n = len(per)
-    return {
+    extra = {}
+    if "oracle_cd" in keys:
+        extra["beats_box_oracle"] = sum(v["oracle_cd"] < v["box_cd"] for v in per.values())
+        extra["oracle_cd_median"] = float(np.median([v["oracle_cd"] for v in per.values()]))
+    return extra | {
         "objects": n,
         "beats_box": sum(v["cd"] < v["box_cd"] for v in per.values()),
         "beats_sphere": sum(v["cd"] < v["sphere_cd"] for v in per.values()),
@@ -203,6 +230,8 @@ def summarize(rows: list[dict]) -> dict:
         "box_cd_median": float(np.median([v["box_cd"] for v in per.values()])),
         "sphere_cd_median": float(np.median([v["sphere_cd"] for v in per.values()])),
         "scale_err_median": float(np.median([r["scale_err"] for r in rows])),
+        "scale_cue_err_median": float(np.median([abs(r["scale_cue"] - 1) for r in rows])),
+        "scale_shape_err_median": float(np.median([abs(r["scale_shape"] - 1) for r in rows])),
         "cd_placed_median": float(np.median([r["cd_placed"] for r in rows])),
         "seconds_median": float(np.median([r["seconds"] for r in rows])),
     }
@@ -218,6 +247,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default=None)
     ap.add_argument("--jsonl", default=None, help="append each row as it is measured")
     ap.add_argument("--gt-amodal", action="store_true", help="the true amodal mask as input")
+    ap.add_argument("--oracle", action="store_true", help="also fit every family alone")
     args = ap.parse_args(argv)
     from easyhoi.synth.objects import OBJECT_KINDS, list_objects
 
@@ -227,7 +257,9 @@ def main(argv=None) -> int:
     rows = []
     for obj in objs:
         for seed in args.seeds:
-            r = run_scene(obj if args.procedural else str(obj), seed, args.size, args.gt_amodal)
+            r = run_scene(
+                obj if args.procedural else str(obj), seed, args.size, args.gt_amodal, args.oracle
+            )
             rows.append(r)
             if args.jsonl:
                 with open(args.jsonl, "a") as fh:

@@ -28,6 +28,7 @@ Usage::
     python benchmarks/bench_perception.py                       # all photos with references
     python benchmarks/bench_perception.py --split check --no-point
     python benchmarks/bench_perception.py --only mow-           # photos whose name has mow-
+    python benchmarks/bench_perception.py --click-only          # only the one-point runs
 
 Results: a Markdown table on stdout and ``benchmarks/results/bench_perception.json``.
 """
@@ -159,6 +160,39 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
     return row
 
 
+def run_click(rgb, ref, detector, segmenter) -> dict:
+    """The one-point run alone (``--click-only``): object IoU and seconds of the click."""
+    from easyhoi.perception.chain import segment_hands
+    from easyhoi.perception.prompts import Prompts
+
+    hands = detector.detect(rgb)
+    row = {"hand": bool(hands), "present": ref["object"] is not None}
+    if row["present"] and hands:
+        p = Prompts(object_points=(tuple(float(v) for v in ref["point"]),))
+        t0, c0 = time.perf_counter(), time.process_time()
+        _, sp, _, _ = segment_hands(rgb, hands, segmenter, prompts=p)
+        row["seconds_point"] = time.perf_counter() - t0
+        row["cpu_seconds_point"] = time.process_time() - c0
+        row["iou_point"] = iou(sp.object_mask if sp is not None else None, ref["object"])
+    return row
+
+
+def click_summary(rows: list[dict]) -> dict:
+    pts = [r for r in rows if r["present"]]
+    secs = [r["seconds_point"] for r in pts if "seconds_point" in r]
+    cpu = [r["cpu_seconds_point"] for r in pts if "cpu_seconds_point" in r]
+    return {
+        "with_object": len(pts),
+        "point_iou_ge_0.5": float(np.mean([r.get("iou_point", 0.0) >= 0.5 for r in pts]))
+        if pts
+        else 0.0,
+        "point_mean_iou": float(np.mean([r.get("iou_point", 0.0) for r in pts])) if pts else 0.0,
+        "median_seconds_point": float(np.median(secs)) if secs else 0.0,
+        # CPU time of the one process: wall time on a machine shared with other work
+        "median_cpu_seconds_point": float(np.median(cpu)) if cpu else 0.0,
+    }
+
+
 def summary(rows: list[dict]) -> dict:
     held = [r for r in rows if r["present"]]
     wrong = [r for r in held if r["wrong"]]
@@ -222,6 +256,9 @@ def main(argv=None) -> int:
     ap.add_argument("--split", choices=("all", "tune", "check"), default="all")
     ap.add_argument("--only", default="", help="substring of the photo names to run")
     ap.add_argument("--no-point", action="store_true", help="skip the one-point runs")
+    ap.add_argument(
+        "--click-only", action="store_true", help="only the one-point runs (no automatic choice)"
+    )
     ap.add_argument("--out", type=Path, default=RESULTS / "bench_perception.json")
     args = ap.parse_args(argv)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -246,6 +283,19 @@ def main(argv=None) -> int:
             continue
         rgb = load_image(args.data / ref["image"]).rgb
         ref = fit_to(ref, rgb.shape[:2])
+        if args.click_only:
+            row = run_click(rgb, ref, detector, segmenter)
+            row["half"] = half
+            rows.append(row)
+            names.append(name)
+            print(
+                f"{name[:44]:44s} {half:5s} pt={row.get('iou_point', float('nan')):.2f} "
+                f"{row.get('seconds_point', 0.0):.2f}s "
+                f"cpu {row.get('cpu_seconds_point', 0.0):.2f}s",
+                file=sys.stderr,
+                flush=True,
+            )
+            continue
         row = run_photo(rgb, ref, detector, segmenter, not args.no_point)
         row["half"] = half
         rows.append(row)
@@ -256,11 +306,20 @@ def main(argv=None) -> int:
             file=sys.stderr,
             flush=True,
         )
-    summ = {"all": summary(rows)}
+    summarise = click_summary if args.click_only else summary
+    summ = {"all": summarise(rows)}
     for half in ("tune", "check"):
         part = [r for r in rows if r["half"] == half]
         if part and args.split == "all":
-            summ[half] = summary(part)
+            summ[half] = summarise(part)
+    if args.click_only:
+        print(summary_table(summ))
+        out = args.out.with_name(args.out.stem + "_click.json")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(
+            json.dumps({"photos": dict(zip(names, rows, strict=True)), "summary": summ}, indent=1)
+        )
+        return 0
     print(table(rows, names))
     print()
     print(summary_table(summ))

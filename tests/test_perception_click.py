@@ -4,6 +4,7 @@ proposals do not give whole (textured, two-coloured, leaving the picture)."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from easyhoi.perception.masks import ClassicalHOISegmenter
@@ -63,3 +64,73 @@ def test_one_click_is_deterministic():
     a, b = click(img, 195.0, 60.0), click(img, 195.0, 60.0)
     assert np.array_equal(a, b)
     assert iou(a, obj) > 0.8
+
+
+def test_pieces_on_both_sides_of_the_fingers_are_joined():
+    from easyhoi.perception.click import join_across_hand
+
+    hand = (XX >= 90) & (XX < 110)  # fingers crossing a bar held behind them
+    bar = (np.abs(YY - 50) < 10) & (XX >= 40) & (XX < 160)
+    far = (np.abs(YY - 150) < 10) & (XX >= 20) & (XX < 60)  # foreground not touching the hand
+    fg = (bar | far) & ~hand
+    left = bar & (XX < 90)
+    joined = join_across_hand(fg, left, hand, 50.0)
+    assert np.array_equal(joined, bar & ~hand)
+    # nothing to join when the clicked piece does not reach the hand
+    assert join_across_hand(fg, far, hand, 50.0) is None
+    # a speck under JOIN_MIN of the clicked piece is noise, not a part of the object
+    speck = (np.abs(YY - 50) < 2) & (XX >= 110) & (XX < 112)
+    assert join_across_hand(left | speck, left, hand, 50.0) is None
+
+
+def test_click_proposals_contain_the_click_and_avoid_the_hand():
+    from easyhoi.perception import held_object as ho
+    from easyhoi.perception.click import click_proposals
+    from easyhoi.perception.proposals import propose
+    from easyhoi.perception.skin import skin_model
+
+    # a cup: dark lid over a light body, next to a drawn hand
+    obj = ((XX - 195) ** 2 / 30**2 + (YY - 65) ** 2 / 45**2) < 1
+    img = canvas()
+    img[obj & (YY < 45)] = (60, 20, 20)
+    img[obj & (YY >= 45)] = (230, 200, 60)
+    img, hand = finish(img)
+    kp = det().keypoints2d
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene = ho.Scene(
+        lab=lab, hand=hand, kp=kp, skin_d2=skin_model(lab, kp).d2(lab), other_hands=hand & False
+    )
+    props = propose(img, lab, hand, 150.0, 8, max_size=10.0 * scene.hand_area)
+    masks = click_proposals(img, scene, np.array([195.0, 75.0]), props)
+    assert masks and all(m[75, 195] and not (m & hand).any() for m in masks)
+    assert max(iou(m, obj) for m in masks) > 0.9  # the whole cup is among them
+
+
+def test_the_hands_rim_is_left_out_unless_the_click_is_skin_coloured():
+    from easyhoi.perception import held_object as ho
+    from easyhoi.perception.click import RIM, hand_rim
+    from easyhoi.perception.skin import palm_length, skin_model
+
+    kp = det().keypoints2d
+    L = palm_length(kp)
+    img = canvas()
+    obj = (np.abs(XX - 195) < 25) & (np.abs(YY - 60) < 25)
+    img[obj] = (40, 60, 170)
+    img, drawn = finish(img)
+    # the hand mask misses a band of skin along the drawn hand's side
+    miss = drawn & (XX < XX[drawn].min() + 6)
+    hand = drawn & ~miss
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene = ho.Scene(lab, hand, kp, skin_model(lab, kp).d2(lab), hand & False)
+    rim = hand_rim(scene, np.array([195.0, 60.0]))  # a click on the blue object
+    assert rim[miss].mean() > 0.9  # the unmasked skin next to the hand is the hand's rim
+    assert not (rim & obj).any()  # the object is not skin
+    dist = cv2.distanceTransform((~hand).astype(np.uint8), cv2.DIST_L2, 5)
+    assert not (rim & (dist >= RIM * L)).any()
+    # a click on skin colour (a beige object) keeps everything
+    beige = tuple(int(c) for c in img[hand][0])
+    img2 = img.copy()
+    img2[obj] = beige
+    lab2 = cv2.cvtColor(img2, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene2 = ho.Scene(lab2, hand, kp, skin_model(lab2, kp).d2(lab2), hand & False)
+    assert not hand_rim(scene2, np.array([195.0, 60.0])).any()

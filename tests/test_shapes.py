@@ -229,3 +229,50 @@ def test_hand_inputs_from_a_fitted_hand():
             return None
 
     assert hand_inputs(TwoArgs(), det, model, m, m) == {}
+
+
+def tilted_rod(slope=0.75, s=1000.0, spread=(-0.06, -0.02, 0.02, 0.06)):
+    """An 18 x 2.4 cm rod outline (its projection) whose axis rises by ``slope`` out of the image,
+    held by keypoints in front of it at ``spread`` (metres along it) and two behind."""
+    H, W = 200, 300
+    origin = np.array([150.0, 100.0])
+    r = 0.012
+    k3 = np.zeros((21, 3))
+    k3[:, 0] = np.linspace(-0.14, -0.12, 21)  # the rest of the hand, off the rod
+    k3[:, 1] = np.linspace(0.03, 0.05, 21)
+    front, behind = [4, 8, 12, 16][: len(spread)], [7, 11]
+    k3[front, 0] = spread
+    k3[behind, 0] = [-0.04, 0.04]
+    k3[front + behind, 1] = 0.0
+    k3[front, 2] = slope * k3[front, 0] - r - PAD_M
+    k3[behind, 2] = slope * k3[behind, 0] + r + PAD_M
+    k2 = k3[:, :2] * s + origin
+    m = np.zeros((H, W), np.uint8)
+    cv2.rectangle(m, (60, 88), (239, 111), 1, -1)
+    hand = np.zeros((H, W), np.uint8)
+    for i in range(21):
+        if i not in behind:
+            cv2.circle(hand, tuple(int(x) for x in k2[i]), 5, 1, -1)
+    return m.astype(bool), hand.astype(bool), k2, k3 - k3.mean(0)
+
+
+def test_tilt_from_the_keypoints_on_an_elongated_object():
+    m, hand, k2, k3 = tilted_rod(0.75)
+    c = hand_cues(k2, k3, m, hand)
+    np.testing.assert_allclose(c.axis_px, [1.0, 0.0], atol=1e-6)
+    assert c.axis_slope == pytest.approx(0.75, abs=0.05)
+    mesh = SilhouetteReconstructor().reconstruct(
+        None, m, visible_mask=m & ~hand, hand_mask=hand, hand_keypoints2d=k2,
+        hand_keypoints3d=k3,
+    )  # fmt: skip
+    md = mesh.metadata["easyhoi"]
+    assert md["shape"]["tilt_deg"] == pytest.approx(np.degrees(np.arctan(0.75)), abs=2.0)
+    assert iou(silhouette(mesh, m.shape), m) > 0.9  # the outline is unchanged
+    # depth extent: the 18 cm axis rises 0.75 x 18 cm, plus the 2.4 cm section
+    depth_m = mesh.extents[2] * md["meters_per_unit"]
+    assert depth_m == pytest.approx(0.18 * 0.75 + 0.024, rel=0.08)
+    # a pinch at one place along the rod says nothing about its tilt
+    m, hand, k2, k3 = tilted_rod(0.75, spread=(0.0, 0.005, 0.01, 0.0))
+    k3[[7, 11], 0] = 0.004
+    k2[[7, 11], 0] = 150 + 4
+    assert hand_cues(k2, k3 - k3.mean(0), m, hand).axis_slope == 0.0

@@ -10,6 +10,7 @@ import torch
 from easyhoi.errors import InvalidInputError
 
 ArrayLike = torch.Tensor | np.ndarray
+_NUMPY_FLOATS = (torch.float32, torch.float64)
 
 
 def check_shape(x: ArrayLike, shape: Sequence[int | None], name: str) -> None:
@@ -31,7 +32,14 @@ def check_last_dim(x: ArrayLike, size: int, name: str) -> None:
 
 
 def check_finite(x: ArrayLike, name: str) -> None:
-    ok = torch.isfinite(x).all().item() if isinstance(x, torch.Tensor) else np.isfinite(x).all()
+    if isinstance(x, torch.Tensor):
+        if x.device.type == "cpu" and x.dtype in _NUMPY_FLOATS:
+            # the same test through a zero-copy numpy view: a third of torch's per-call cost
+            ok = np.isfinite(x.detach().numpy()).all()
+        else:
+            ok = torch.isfinite(x).all().item()
+    else:
+        ok = np.isfinite(x).all()
     if not ok:
         raise InvalidInputError(f"{name} contains NaN or infinite values")
 
@@ -42,8 +50,10 @@ def check_faces(faces: ArrayLike, num_vertices: int, name: str = "faces") -> Non
         raise InvalidInputError(f"{name} must have shape (F, 3), got {tuple(faces.shape)}")
     if faces.shape[0] == 0:
         return
-    lo = int(faces.min())
-    hi = int(faces.max())
+    if isinstance(faces, torch.Tensor) and faces.dtype != torch.bool:
+        lo, hi = (int(v) for v in torch.aminmax(faces))
+    else:
+        lo, hi = int(faces.min()), int(faces.max())
     if lo < 0 or hi >= num_vertices:
         raise InvalidInputError(
             f"{name} index vertices in [{lo}, {hi}] but there are only {num_vertices} vertices"

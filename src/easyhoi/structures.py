@@ -53,6 +53,24 @@ KEYPOINT_NAMES: tuple[str, ...] = tuple(
 )
 
 
+def _all_finite(*tensors: torch.Tensor) -> bool:
+    """True when every value of the (small) tensors is finite; one check instead of three."""
+    if all(x.device.type == "cpu" and x.dtype in _NUMPY_FLOATS for x in tensors):
+        return all(bool(np.isfinite(x.detach().numpy()).all()) for x in tensors)
+    return all(bool(torch.isfinite(x.detach()).all()) for x in tensors)
+
+
+def _focals(K: torch.Tensor) -> tuple[float, float]:
+    """(fx, fy) of an intrinsics matrix as Python floats."""
+    if K.device.type == "cpu" and K.dtype in _NUMPY_FLOATS:
+        k = K.detach().numpy()
+        return float(k[0, 0]), float(k[1, 1])
+    return float(K[0, 0].detach()), float(K[1, 1].detach())
+
+
+_NUMPY_FLOATS = (torch.float32, torch.float64)
+
+
 def _as_tensor(x, dtype=None, device=None) -> torch.Tensor:
     if isinstance(x, torch.Tensor):
         return x.to(dtype=dtype or x.dtype, device=device or x.device)
@@ -93,19 +111,36 @@ class Camera:
         check_shape(self.K, (3, 3), "Camera.K")
         check_shape(self.R, (3, 3), "Camera.R")
         check_shape(self.t, (3,), "Camera.t")
-        for name in ("K", "R", "t"):
-            check_finite(getattr(self, name).detach(), f"Camera.{name}")
+        if not _all_finite(self.K, self.R, self.t):
+            for name in ("K", "R", "t"):
+                check_finite(getattr(self, name).detach(), f"Camera.{name}")
         if int(self.width) <= 0 or int(self.height) <= 0:
             raise InvalidInputError(
                 f"camera image size must be positive, got {self.width}x{self.height}"
             )
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
-        fx, fy = float(self.K[0, 0].detach()), float(self.K[1, 1].detach())
+        fx, fy = _focals(self.K)
         if fx <= 0 or fy <= 0:
             raise InvalidInputError(
                 f"camera focal lengths must be positive, got fx={fx:.4g}, fy={fy:.4g}"
             )
+
+    @classmethod
+    def _trusted(cls, K: torch.Tensor, R: torch.Tensor, t: torch.Tensor, width: int, height: int):
+        """A camera built without validation, from parts derived from a validated camera.
+
+        For the internal derivations (:meth:`detach`, :meth:`resized`, same-type :meth:`to`)
+        whose results are valid whenever their source is: they run in every optimizer
+        iteration, where re-checking the same numbers cost more than the rendering around them.
+        """
+        cam = object.__new__(cls)
+        object.__setattr__(cam, "K", K)
+        object.__setattr__(cam, "R", R)
+        object.__setattr__(cam, "t", t)
+        object.__setattr__(cam, "width", width)
+        object.__setattr__(cam, "height", height)
+        return cam
 
     # -- constructors -------------------------------------------------------------------------
     @classmethod
@@ -220,10 +255,11 @@ class Camera:
             depth: (...,) camera-frame z (positive in front of the camera).
         """
         pc = self.world_to_camera(points)
-        z = pc[..., 2]
-        zs = torch.where(z.abs() < eps, torch.full_like(z, eps), z)
-        u = self.K[0, 0] * pc[..., 0] / zs + self.K[0, 1] * pc[..., 1] / zs + self.K[0, 2]
-        v = self.K[1, 1] * pc[..., 1] / zs + self.K[1, 2]
+        x, y, z = pc.unbind(-1)
+        zs = torch.where(z.abs() < eps, eps, z)
+        fx, skew, cx, _, fy, cy, _, _, _ = self.K.flatten().unbind()  # one op, not five
+        u = fx * x / zs + skew * y / zs + cx
+        v = fy * y / zs + cy
         return torch.stack([u, v], dim=-1), z
 
     def unproject(self, uv: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
@@ -261,16 +297,28 @@ class Camera:
 
     def resized(self, width: int, height: int) -> Camera:
         """The same camera for an image resampled to ``width`` x ``height``."""
+        checked = type(width) is int and type(height) is int and width > 0 and height > 0
+        if checked and width == self.width and height == self.height:
+            return self
         sx, sy = width / self.width, height / self.height
         S = torch.diag(torch.tensor([sx, sy, 1.0], dtype=self.K.dtype, device=self.K.device))
-        return replace(self, K=S @ self.K, width=width, height=height)
+        if not checked:  # the validating constructor converts or rejects the size
+            return replace(self, K=S @ self.K, width=width, height=height)
+        # positive finite scales of a valid K keep its focal lengths finite and positive
+        return type(self)._trusted(S @ self.K, self.R, self.t, width, height)
 
     def detach(self) -> Camera:
-        return replace(self, K=self.K.detach(), R=self.R.detach(), t=self.t.detach())
+        K, R, t = self.K, self.R, self.t
+        if not (K.requires_grad or R.requires_grad or t.requires_grad):
+            return self
+        return type(self)._trusted(K.detach(), R.detach(), t.detach(), self.width, self.height)
 
     def to(self, dtype: torch.dtype | None = None, device=None) -> Camera:
         kw = dict(dtype=dtype, device=device)
-        return replace(self, K=self.K.to(**kw), R=self.R.to(**kw), t=self.t.to(**kw))
+        K, R, t = self.K.to(**kw), self.R.to(**kw), self.t.to(**kw)
+        if K is self.K and R is self.R and t is self.t:
+            return self  # already of that type and on that device: nothing changed
+        return replace(self, K=K, R=R, t=t)
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (lists of floats)."""

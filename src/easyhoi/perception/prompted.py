@@ -1,21 +1,17 @@
 """Prompted held-object segmentation: the object is the region containing the user's points
 or filling the user's box.
 
-Points alone go to :func:`clicked_object`: GrabCut grown from the points
-(:mod:`easyhoi.perception.click`), the region proposals only when it collapses.
+Points alone go to :func:`clicked_object`: candidates grown from the points by GrabCut and the
+region proposals that contain them, scored together (:mod:`easyhoi.perception.click`).
 
-With the proposals, a point says where the object is but not how far it extends. The hypotheses
-of the proposal hierarchy that contain every point form a chain from a single segment up to
-large parts of the crop. :func:`prompt_score` ranks them by whether they look like a whole
-object (outline contrast, solidity, size, not another hand); the best distinct levels (up to
-four) each seed GrabCut with the points as sure foreground and the hands as sure background
-(GrabCut's colour mixtures gather the parts of a textured object the proposals split), the
-refined masks are scored again and the best one is kept, restricted to the parts that contain
-the points.
-
-A box says how far the object extends: hypotheses must lie mostly inside it and are favoured by
-how well they fill it (share of the region inside the box times share of the box it covers), and
-everything outside the box is sure background for GrabCut.
+With a box (and optional points), hypotheses of the proposal hierarchy must lie mostly inside
+the box and contain every point; they are favoured by how well they fill it (share of the region
+inside the box times share of the box it covers) and ranked by :func:`prompt_score` (outline
+contrast, solidity, size, not another hand). The best distinct levels (up to four) each seed
+GrabCut with the points as sure foreground, the hands and everything outside the box as sure
+background (GrabCut's colour mixtures gather the parts of a textured object the proposals
+split); the refined masks are scored again, the best one is kept, restricted to the parts that
+contain the points.
 """
 
 from __future__ import annotations
@@ -26,7 +22,7 @@ import cv2
 import numpy as np
 
 from easyhoi.perception import held_object as ho
-from easyhoi.perception.click import click_object, collapsed
+from easyhoi.perception.click import click_object, click_proposals
 from easyhoi.perception.proposals import Proposals
 from easyhoi.perception.skin import fill_holes
 
@@ -75,14 +71,14 @@ def prompted_object(
     props: Proposals,
     scene: ho.Scene,
     points: np.ndarray,
-    box: tuple[float, float, float, float] | None,
+    box: tuple[float, float, float, float],
     iterations: int,
     seed: int,
 ) -> tuple[np.ndarray, ho.Hypotheses | None, int | None]:
     """(object mask, hypotheses, index of the chosen one) in working-crop pixels.
 
-    ``points`` (N, 2) (u, v) and ``box`` (u0, v0, u1, v1) are in working-crop pixels; at least
-    one of them is given.
+    ``box`` (u0, v0, u1, v1) and the optional ``points`` (N, 2) (u, v) are in working-crop
+    pixels. Points without a box go to :func:`clicked_object` instead.
     """
     shape = img.shape[:2]
     h, w = shape
@@ -91,14 +87,10 @@ def prompted_object(
     pts = np.clip(pts, 0, [w - 1, h - 1])
     sure = _point_disks(shape, pts, max(1.0, 0.04 * L))
     forbidden = (scene.hand | scene.other_hands) & ~sure
-    boxmask = None
-    if box is not None:
-        u0, v0, u1, v1 = (int(round(b)) for b in box)
-        boxmask = np.zeros(shape, bool)
-        boxmask[max(0, v0) : max(0, v1), max(0, u0) : max(0, u1)] = True
+    u0, v0, u1, v1 = (int(round(b)) for b in box)
+    boxmask = np.zeros(shape, bool)
+    boxmask[max(0, v0) : max(0, v1), max(0, u0) : max(0, u1)] = True
     if not props.regions:
-        if boxmask is None:
-            return click_object(img, scene, pts, [], iterations, seed)[0], None, None
         return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None
     cues = ho.describe(props, scene)
     n = len(props.regions)
@@ -108,18 +100,15 @@ def prompted_object(
         if lab >= 0:
             ok &= np.array([lab in r for r in props.regions])
     fit = np.zeros(n)
-    if boxmask is not None:
-        inside = ho.segment_sums(props.labels, boxmask, props.n_base)
-        box_area = max(1.0, float(boxmask.sum()))
-        for i, r in enumerate(props.regions):
-            idx = np.fromiter(r, int, len(r))
-            a_in = float(inside[idx].sum())
-            size = float(props.sizes[idx].sum())
-            fit[i] = (a_in / max(size, 1.0)) * (a_in / box_area)
-        ok &= fit > 0.05
+    inside = ho.segment_sums(props.labels, boxmask, props.n_base)
+    box_area = max(1.0, float(boxmask.sum()))
+    for i, r in enumerate(props.regions):
+        idx = np.fromiter(r, int, len(r))
+        a_in = float(inside[idx].sum())
+        size = float(props.sizes[idx].sum())
+        fit[i] = (a_in / max(size, 1.0)) * (a_in / box_area)
+    ok &= fit > 0.05
     if not ok.any():
-        if boxmask is None:
-            return click_object(img, scene, pts, [], iterations, seed)[0], None, None
         return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None
     exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     codes = ho.colour_codes(scene.lab)
@@ -135,13 +124,7 @@ def prompted_object(
     s = prompt_score(cues) + 4.0 * fit
     s = np.where(np.isin(np.arange(n), cand), s, -np.inf)
     hyp = ho.Hypotheses(props, cues, s)
-    if boxmask is None:  # clicks only: GrabCut grown from the clicks, proposals as fallback
-        top = ho.distinct_best(hyp, 2)
-        fb = [(props.mask(props.regions[i]) | sure) & ~forbidden for i in top]
-        obj = click_object(img, scene, pts, fb, iterations, seed)[0]
-        return obj, hyp, (top[0] if top else None)
-    if boxmask is not None:
-        forbidden = forbidden | ~boxmask
+    forbidden = forbidden | ~boxmask
     # the proposals break textured objects into parts: each of the best distinct levels seeds
     # GrabCut (whose colour mixtures gather an object's several colours), and the refined
     # masks are scored again
@@ -159,10 +142,8 @@ def prompted_object(
             keep = np.unique(cc[sure & m])
             m = np.isin(cc, keep[keep > 0])
         c = ho.mask_cues(m, scene)[None]
-        f = 0.0
-        if boxmask is not None:
-            a_in = float((m & boxmask).sum())
-            f = (a_in / max(1.0, float(m.sum()))) * (a_in / max(1.0, float(boxmask.sum())))
+        a_in = float((m & boxmask).sum())
+        f = (a_in / max(1.0, float(m.sum()))) * (a_in / max(1.0, float(boxmask.sum())))
         sc = float(prompt_score(c)[0]) + 4.0 * f
         if sc > best_s:
             best, obj, best_s = i, m, sc
@@ -179,8 +160,10 @@ def clicked_object(
 ) -> tuple[np.ndarray, ho.Hypotheses, int | None, Proposals | None]:
     """The object from object points alone.
 
-    GrabCut grown from the points (:func:`easyhoi.perception.click.click_object`); the region
-    proposals (costly) are made only when GrabCut collapses to the points.
+    The candidates are the GrabCut masks grown from the first point
+    (:func:`easyhoi.perception.click.click_candidates`) and every region proposal containing it,
+    from ``make_proposals`` and from a finer segmentation of the crop
+    (:func:`easyhoi.perception.click.click_proposals`); :func:`click_object` keeps the best.
 
     Args:
         img (np.ndarray): (h, w, 3) uint8 RGB working crop.
@@ -191,17 +174,15 @@ def clicked_object(
         seed (int): Seed of OpenCV's RNG.
 
     Returns:
-        tuple: (h, w) bool object mask, the hypotheses (the output mask alone when no proposals
-        were made), the index of the chosen one, and the proposals or None.
+        tuple: (h, w) bool object mask, the hypotheses (the output mask alone), the index of
+        the chosen one, and the proposals.
     """
-    obj, _ = click_object(img, scene, points, [], iterations, seed)
-    if not collapsed(obj, scene):
-        return obj, mask_hypothesis(obj, scene), 0, None
+    h, w = img.shape[:2]
+    pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
     props = make_proposals()
-    obj, hyp, best = prompted_object(img, props, scene, points, None, iterations, seed)
-    if hyp is None:
-        hyp, best = mask_hypothesis(obj, scene), 0
-    return obj, hyp, best, props
+    fallback = click_proposals(img, scene, pts[0], props)
+    obj, _ = click_object(img, scene, pts, fallback, iterations, seed)
+    return obj, mask_hypothesis(obj, scene), 0, props
 
 
 def mask_hypothesis(mask: np.ndarray, scene: ho.Scene) -> ho.Hypotheses:

@@ -131,11 +131,20 @@ def project_faces(
     B = verts.shape[0]
     F = faces.shape[0]
     uv, z = camera.project(verts.to(camera.K.dtype))  # (B, V, 2), (B, V)
-    tri_uv = uv[:, faces].reshape(B * F, 3, 2)
-    tri_z = z[:, faces].reshape(B * F, 3)
+    corners = faces.reshape(-1)
+    # index_select gathers (and its backward scatters) the same values as ``uv[:, faces]`` at
+    # half the cost of advanced indexing
+    tri_uv = uv.index_select(1, corners).reshape(B * F, 3, 2)
+    tri_z = z.index_select(1, corners).reshape(B * F, 3)
     with torch.no_grad():
-        ok = (tri_z >= near).all(dim=1) & torch.isfinite(tri_uv).all(dim=(1, 2))
+        # a face is kept when all its corners are: test the V vertices, not the 3 F corners
+        ok_v = (z >= near) & torch.isfinite(uv).all(dim=2)
+        if bool(ok_v.all()):  # every vertex usable (the usual case): every face kept, in order
+            return tri_uv, tri_z, torch.arange(B * F, device=uv.device)
+        ok = ok_v.index_select(1, corners).reshape(B * F, 3).all(dim=1)
         keep = ok.nonzero().squeeze(1)
+    if keep.shape[0] == B * F:  # nothing dropped: no second gather
+        return tri_uv, tri_z, keep
     return tri_uv[keep], tri_z[keep], keep
 
 

@@ -25,6 +25,11 @@ the amodal outline in a working frame (:mod:`.common`) and scored::
   grip shows to be thin is a slab, not a pillow) and round families thicker than 1.5 x the gap
   are penalised too. Families with a free depth (slab, face-on cuboid, superquadric,
   inflation) take the gap: thinned to a flat grip's, or thickened to the lower bound.
+* ``tilt`` — the selection and the fits see the object lying parallel to the image. When the
+  keypoints on an elongated object give its axis's slope out of the image
+  (:func:`.hand_cues.axis_slope`), the winner (all but the cuboid, whose 3D rotation is fitted)
+  is sheared to it, ``z' = z + s b`` (``s`` along the outline's long axis, ``b`` the slope):
+  the silhouette is unchanged and the length along the axis becomes ``L sqrt(1 + b^2)``.
 * ``relief`` (with a depth model) — :data:`FRONT_WEIGHT` x the correlation between the depth
   map's front relief and the hypothesis's front surface on the visible object
   (:func:`.common.relief_agreement`): a cylinder's front bulges, a slab's is flat, a box shows
@@ -88,6 +93,16 @@ def _grip_depth(h: Hypothesis, grip: np.ndarray, mask: np.ndarray, radius: float
             if 0 <= i < mask.shape[0] and 0 <= j < mask.shape[1] and mask[i, j]:
                 best = max(best, view_chord(h.verts, h.faces, u, v))
     return best
+
+
+def tilt_about_axis(verts: np.ndarray, mask: np.ndarray, axis, slope: float) -> np.ndarray:
+    """(V, 3) source-pixel vertices sheared so that the long ``axis`` (u, v) rises by ``slope``
+    out of the image, with the silhouette unchanged (module docs, ``tilt``)."""
+    rows, cols = np.nonzero(mask)
+    c = np.array([cols.mean() + 0.5, rows.mean() + 0.5])
+    out = np.array(verts, dtype=np.float64)
+    out[:, 2] += ((out[:, :2] - c) @ np.asarray(axis, dtype=np.float64)) * slope
+    return out
 
 
 def _nearest_inside(mask: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -193,11 +208,16 @@ def fit_shape(
     verts = np.array(win.verts, dtype=np.float64)
     verts[:, :2] = wf.to_source(verts[:, :2])
     verts[:, 2] *= wf.scale
+    slope = 0.0
+    if cues is not None and cues.axis_slope and win.name != "cuboid":
+        slope = cues.axis_slope
+        verts = tilt_about_axis(verts, mask, cues.axis_px, slope)
     info = {
         "shape": win.name,
         "scores": {h.name: h.info for h in hyps},
         "depth_cue_px": None if t_obs is None else round(t_obs * wf.scale, 3),
         "depth_cue_confidence": conf,
         "flat_by_grip": bool(flat),
+        "tilt_deg": round(float(np.degrees(np.arctan(slope))), 2),
     }
     return verts, win.faces, info

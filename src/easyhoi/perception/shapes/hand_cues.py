@@ -21,6 +21,18 @@ the fitted hand model — a hand model has a known size, so its keypoints are me
   flat one. It holds for any grasp type (pinch, power wrap, lateral) as long as the hand holds the
   object from both sides along the view; when the whole hand is on one side the cue is absent.
   ``confidence`` grows with the number of keypoints on the lesser side (1 with three or more).
+* **Tilt of an elongated object.** The silhouette cannot tell an object lying parallel to the
+  image from a longer one tilted towards the camera. The keypoints that project inside the
+  outline touch the object (or lie across it), so their depths follow the object's axis: in
+  front of it by half its thickness and the finger's pad, or behind it by as much (the thickness
+  is the grip gap above when the hand holds it from both sides; from one side the offset is the
+  same for every keypoint and does not change the slope). A line fitted to
+  those corrected depths against the position along the outline's long axis gives the axis's
+  slope out of the image, ``dz / ds`` (:func:`axis_slope`). It needs at least
+  :data:`TILT_MIN_KEYPOINTS` keypoints spread over :data:`TILT_MIN_SPREAD_M` along the axis (a
+  pinch at one point says nothing about the tilt) on an outline at least
+  :data:`TILT_MIN_ASPECT` times longer than wide (a round outline has no axis), and is capped at
+  :data:`TILT_MAX_DEG`.
 """
 
 from __future__ import annotations
@@ -34,6 +46,12 @@ import numpy as np
 INTERIOR_FRACTION = 0.3
 #: Soft tissue between a keypoint (joint centre) and the surface the finger presses, metres.
 PAD_M = 0.009
+#: Tilt cue (module docs): keypoints inside the outline, their spread along the axis (metres),
+#: the outline's aspect ratio, and the largest tilt out of the image (degrees).
+TILT_MIN_KEYPOINTS = 3
+TILT_MIN_SPREAD_M = 0.02
+TILT_MIN_ASPECT = 2.0
+TILT_MAX_DEG = 60.0
 
 
 @dataclass(frozen=True)
@@ -47,6 +65,9 @@ class HandCues:
         confidence: trust in ``depth_m``, in [0, 1] (0 without it).
         grip_depth_m: camera z of the grip (mid-thickness) relative to the keypoints' mean z.
         front, behind: keypoints (indices) found in front of / behind the object.
+        axis_px: (2,) unit long axis of the outline in the image (u, v), or None.
+        axis_slope: the object's axis slope out of the image along ``axis_px`` (dz / ds, z away
+            from the camera); 0 when the cue is absent.
     """
 
     px_per_m: float
@@ -56,6 +77,8 @@ class HandCues:
     grip_depth_m: float
     front: tuple = ()
     behind: tuple = ()
+    axis_px: np.ndarray | None = None
+    axis_slope: float = 0.0
 
     def to_dict(self) -> dict:
         return {
@@ -65,6 +88,7 @@ class HandCues:
             "confidence": round(self.confidence, 4),
             "front": list(self.front),
             "behind": list(self.behind),
+            "axis_slope": round(self.axis_slope, 4),
         }
 
 
@@ -107,12 +131,58 @@ def hand_cues(keypoints2d, keypoints3d, object_mask=None, hand_mask=None) -> Han
             # the hand seen in a small neighbourhood: in front; else the object hides it
             win = hand_mask[max(r - 1, 0) : r + 2, max(c - 1, 0) : c + 2]
             (front if win.mean() >= 0.5 else behind).append(i)
+    axis, slope = None, 0.0
     if not front or not behind:
-        return HandCues(s, None, None, 0.0, 0.0, tuple(front), tuple(behind))
+        if object_mask is not None and hand_mask is not None and object_mask.any():
+            axis, slope = axis_slope(k2, z, s, object_mask, hand_mask, 0.0)
+        return HandCues(s, None, None, 0.0, 0.0, tuple(front), tuple(behind), axis, slope)
     zf, zb = float(np.median(z[front])), float(np.median(z[behind]))
     depth = zb - zf - 2 * PAD_M
     if depth <= 0:  # inconsistent ordering (keypoint noise): no cue
         return HandCues(s, None, None, 0.0, 0.0, tuple(front), tuple(behind))
+    axis, slope = axis_slope(k2, z, s, object_mask, hand_mask, depth)
     conf = float(min(1.0, min(len(front), len(behind)) / 3))
     grip = 0.5 * (k2[front].mean(0) + k2[behind].mean(0))
-    return HandCues(s, grip, depth, conf, 0.5 * (zf + zb), tuple(front), tuple(behind))
+    return HandCues(s, grip, depth, conf, 0.5 * (zf + zb), tuple(front), tuple(behind), axis,
+                    slope)  # fmt: skip
+
+
+def axis_slope(
+    k2, z, px_per_m, object_mask, hand_mask, thickness_m: float
+) -> tuple[np.ndarray | None, float]:
+    """(axis, slope) of an elongated held object from the keypoints on it (module docs).
+
+    Args:
+        k2: (21, 2) keypoints in pixels; z: (21,) their depths in metres (any offset).
+        px_per_m: image scale at the hand.
+        object_mask, hand_mask: (H, W) bool amodal object and visible hand.
+        thickness_m: the object's thickness along the view (0 when unknown).
+
+    Returns:
+        the outline's unit long axis (u, v) (None for an outline with no long axis) and the
+        slope dz / ds along it (0 when the cue is absent).
+    """
+    rows, cols = np.nonzero(object_mask)
+    pts = np.stack([cols + 0.5, rows + 0.5], axis=1)
+    c = pts.mean(0)
+    w, vec = np.linalg.eigh(np.cov((pts - c).T))
+    if w[0] <= 0 or np.sqrt(w[1] / w[0]) < TILT_MIN_ASPECT:
+        return None, 0.0
+    axis = vec[:, 1] if vec[np.argmax(np.abs(vec[:, 1])), 1] > 0 else -vec[:, 1]
+    H, W = object_mask.shape
+    half = 0.5 * thickness_m + PAD_M
+    S, Z = [], []
+    for i, (u, v) in enumerate(k2):
+        r, q = int(np.floor(v)), int(np.floor(u))
+        if not (0 <= r < H and 0 <= q < W and object_mask[r, q]):
+            continue
+        seen = hand_mask[max(r - 1, 0) : r + 2, max(q - 1, 0) : q + 2].mean() >= 0.5
+        S.append(float((np.array([u, v]) - c) @ axis) / px_per_m)
+        Z.append(z[i] + (half if seen else -half))
+    S, Z = np.asarray(S), np.asarray(Z)
+    if len(S) < TILT_MIN_KEYPOINTS or np.ptp(S) < TILT_MIN_SPREAD_M:
+        return axis, 0.0
+    dS = S - S.mean()
+    b = float(dS @ (Z - Z.mean()) / (dS @ dS))
+    cap = np.tan(np.radians(TILT_MAX_DEG))
+    return axis, float(np.clip(b, -cap, cap))

@@ -1,0 +1,56 @@
+"""One click on development photos (slow; skipped without the shared data): the click is the
+reference held-object mask's deepest interior point, the answer the hand-drawn reference
+outline (``tests/data/perception_refs``).
+
+The photos are ones where only the region proposals containing the click give the whole object
+(a board game with a printed picture, a cutting board, a two-coloured pack) or where GrabCut
+alone does (a bottle, a lollipop); IoU >= 0.5 is asserted, and that the object and hand masks
+do not overlap.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+pytestmark = pytest.mark.slow
+
+PHOTOS = (
+    "photos-dev__ihoi-demo_08",
+    "photos-dev__ihoi-demo_16",
+    "photos-dev__mow-boardgame_v__C60zI5bZ5A_frame000050",
+    "photos-dev__mow-food_v_K3IhJ4saTZk_frame000077",
+    "photos-dev__mow-packing_v_I1nUNz-qLjA_frame000017",
+)
+
+
+@pytest.fixture(scope="module")
+def detector():
+    from easyhoi.perception.mediapipe_hand import MediaPipeHands
+
+    return MediaPipeHands()
+
+
+@pytest.mark.parametrize("key", PHOTOS)
+def test_one_click_finds_the_held_object(shared_data, detector, key):
+    from easyhoi.io.image import load_image
+    from easyhoi.perception.chain import segment_hands
+    from easyhoi.perception.masks import ClassicalHOISegmenter
+    from easyhoi.perception.prompts import Prompts
+    from tests import perception_refs as pr
+
+    ref = pr.load_ref(key)
+    path = ref.image_path(shared_data)
+    if not path.is_file():
+        pytest.skip(f"{path} not found")
+    rgb = load_image(path).rgb
+    if rgb.shape[:2] != (ref.height, ref.width):
+        pytest.skip("photo resampled by the loader")
+    hands = detector.detect(rgb)
+    assert hands, key
+    point = pr.object_point(ref)
+    _, seg, _, _ = segment_hands(
+        rgb, hands, ClassicalHOISegmenter(), Prompts(object_points=(point,))
+    )
+    assert seg is not None and seg.has_object
+    assert pr.mask_iou(seg.object_mask, pr.held_object_mask(ref)) >= 0.5, key
+    assert not (seg.object_mask & seg.hand_mask).any()
