@@ -202,6 +202,8 @@ def summary(rows: list[dict]) -> dict:
         "photos": len(rows),
         "with_object": len(held),
         "hand_found": float(np.mean([r["hand"] for r in rows])) if rows else 0.0,
+        "mean_hand_iou": float(np.mean([r["hand_iou"] for r in rows])) if rows else 0.0,
+        "hand_iou_ge_0.7": float(np.mean([r["hand_iou"] >= 0.7 for r in rows])) if rows else 0.0,
         "iou_ge_0.5": float(np.mean([r["iou"] >= 0.5 for r in held])) if held else 0.0,
         "mean_iou": float(np.mean([r["iou"] for r in held])) if held else 0.0,
         "best_hyp_iou_ge_0.5": float(np.mean([r["best_hyp"] >= 0.5 for r in held]))

@@ -8,13 +8,20 @@ skin model of *this* photo and *this* hand; a region that matches it is skin (th
 forearm, the other hand or a face), not a held object.
 
 Hand mask M_h (GrabCut seeded by the skeleton):
-  * L = palm length (wrist -> middle MCP). Bones drawn ``0.3 L`` wide and the palm polygon
-    (wrist, thumb CMC, index/middle/ring/pinky MCP) filled: "probably foreground".
+  * L = palm length (wrist -> middle MCP); S = hand scale, the larger of L and the palm width
+    (index MCP -> pinky MCP) / ``PALM_WIDTH_RATIO`` (:func:`hand_scale`). A palm tilted about
+    its width looks short while the fingers keep their width; one tilted about its length looks
+    narrow: the larger of the two is the less foreshortened measure of the hand's size.
+  * Bones drawn ``0.3 L`` wide and the palm polygon (wrist, thumb CMC, index/middle/ring/pinky
+    MCP) filled: "probably foreground" (kept narrow: GrabCut starts these pixels as hand, and an
+    object pressed against the fingers must not start as hand).
   * Thin bone cores (``0.08 L``) and the eroded palm that match the colour model: "sure
     foreground" (occluded fingers drawn over an object do not match and stay "probable").
-    Farther than ``HAND_REACH`` L from the wide skeleton: "sure background".
-  * GrabCut refines; the component(s) overlapping the cores are kept, and the forearm is cut at
-    ``0.25 L`` behind the wrist (the hand model ends at the wrist).
+    Farther than ``HAND_REACH`` S from the wide skeleton: "sure background" (in S: how far
+    GrabCut may grow the hand follows the hand's true size).
+  * GrabCut refines; pixels farther than 4 sigma from the colour model, or 3 sigma in chroma
+    alone, are dropped (bone cores excepted); the component(s) overlapping the cores are kept,
+    and the forearm is cut at ``0.25 L`` behind the wrist (the hand model ends at the wrist).
 """
 
 from __future__ import annotations
@@ -30,14 +37,23 @@ PALM = (0, 1, 5, 9, 13, 17)
 SKIN_D2 = 9.0
 #: Looser bound (4 sigma) a hand-mask pixel must meet: shading and blur widen the hand's colours.
 SKIN_LOOSE = 16.0
-#: Farthest a hand pixel lies outside the 0.3 L wide skeleton, in palm lengths: a finger is about
-#: 0.2 L wide, so this leaves room for keypoint error without taking in a held object.
+#: Farthest a hand pixel lies outside the 0.3 L wide skeleton, in hand scales S: a finger is
+#: about 0.2 S wide, so this leaves room for keypoint error without taking in a held object.
 HAND_REACH = 0.3
+#: Palm width (index MCP -> pinky MCP) / palm length (wrist -> middle MCP) of an adult hand
+#: seen square to the camera (about 0.75-0.85); the upper end, so S never exceeds the true size.
+PALM_WIDTH_RATIO = 0.85
 
 
 def palm_length(kp: np.ndarray) -> float:
     """Wrist-to-middle-MCP distance of (21, 2) keypoints (floored at 1 px)."""
     return max(1.0, float(np.linalg.norm(kp[9] - kp[0])))
+
+
+def hand_scale(kp: np.ndarray) -> float:
+    """Size of the hand in px: the larger of the palm length and the palm width /
+    ``PALM_WIDTH_RATIO`` of (21, 2) keypoints (see the module docstring)."""
+    return max(palm_length(kp), float(np.linalg.norm(kp[5] - kp[17])) / PALM_WIDTH_RATIO)
 
 
 def draw_skeleton(shape: tuple[int, int], kp: np.ndarray, width: float, palm: bool) -> np.ndarray:
@@ -76,6 +92,10 @@ class ColourModel:
     def d2(self, lab: np.ndarray) -> np.ndarray:
         """Squared normalised distance of every pixel to the model (< SKIN_D2: skin)."""
         return (((lab - self.mu) / self.sigma) ** 2).sum(-1)
+
+    def chroma_d2(self, lab: np.ndarray) -> np.ndarray:
+        """Squared normalised distance in chroma (a*, b*) alone."""
+        return (((lab[..., 1:] - self.mu[1:]) / self.sigma[1:]) ** 2).sum(-1)
 
 
 def skin_model(lab: np.ndarray, kp: np.ndarray) -> ColourModel:
@@ -124,12 +144,12 @@ def hand_mask(
     object's colours from them and keeps a skin-coloured object the fingers cover out of the
     hand."""
     shape = img.shape[:2]
-    L = palm_length(kp)
+    L, S = palm_length(kp), hand_scale(kp)
     core = draw_skeleton(shape, kp, 0.08 * L, palm=False)
     wide = draw_skeleton(shape, kp, 0.3 * L, palm=True)
     dist = cv2.distanceTransform((~wide).astype(np.uint8), cv2.DIST_L2, 5)
     init = np.full(shape, cv2.GC_PR_BGD, np.uint8)
-    init[dist > HAND_REACH * L] = cv2.GC_BGD
+    init[dist > HAND_REACH * S] = cv2.GC_BGD
     init[wide] = cv2.GC_PR_FGD
     init[wide & (d2 > 25.0)] = cv2.GC_PR_BGD
     palm_core = cv2.erode(
@@ -142,8 +162,12 @@ def hand_mask(
     fg = grabcut(img, init, iterations, seed)
     # GrabCut's colour mixture also takes an object the fingers press on when its colour is
     # closer to the hand's than to the crop's background; the hand is skin wherever it is not
-    # drawn over something (the bone cores are kept: a finger may cross an object)
-    fg &= (d2 < SKIN_LOOSE) | core | palm_core
+    # drawn over something (the bone cores are kept: a finger may cross an object). Shading
+    # moves a hand's colours along lightness, so the lightness spread is wide; the chroma of
+    # skin stays, and a pale neutral surface (paper, a screen, a white cup) that passes the
+    # joint bound on its lightness is still off the hand's chroma
+    skin = (d2 < SKIN_LOOSE) & (skin_model(lab, kp).chroma_d2(lab) < SKIN_D2)
+    fg &= skin | core | palm_core
     if not_hand is not None:
         fg &= ~not_hand
     fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
