@@ -216,6 +216,56 @@ def test_push_out_takes_a_sunken_hand_out_without_bending_it():
     assert note["steps"] == 0 and float(move.norm()) == 0.0
 
 
+def test_push_out_along_the_camera_ray_keeps_the_hand_in_the_image():
+    """Pushed out along the ray through the hand, the sunken hand leaves the object and its 21
+    keypoints stay within 1 % of the photo's width of where they were (a move along the
+    object's normal shifts them more than 1.5 times as far)."""
+    from dataclasses import replace
+
+    from easyhoi.config import get_preset
+    from easyhoi.optim.refine import push_out
+    from easyhoi.optim.state import Scene
+    from easyhoi.testing.optim_scenes import make_scene
+
+    sc = make_scene("box")
+    cfg = replace(get_preset("fast").optim.refine, push_out_steps=6)
+    scene = Scene.from_input(sc.inp, sc.model, torch.float64)
+    cam = sc.gt_camera.to(torch.float64)
+    p = sc.gt_hand.to(dtype=torch.float64)
+    m = sc.gt_metric_scale
+    with torch.no_grad():
+        out = sc.model(p)
+        v, k = out.vertices[0] / m, out.keypoints[0] / m
+    # sunk along the ray through the hand (a depth error: the photo cannot tell)
+    ray = v.mean(0) - cam.center.double()
+    ray = ray / ray.norm()
+    with torch.no_grad():
+        d_gt = scene.sdf(v, cfg.sdf_resolution)
+    for s in (0.05, 0.08, 0.11):
+        shift = s * scene.extent * ray
+        if float(scene.sdf(v + shift, cfg.sdf_resolution).min()) < -0.03:
+            break
+    assert float(scene.sdf(v + shift, cfg.sdf_resolution).min()) < -0.03  # deeply inside
+    sunk = replace(p, transl=p.transl + m * shift[None])
+    uv0, _ = cam.project(k + shift)
+    move, note = push_out(scene, sunk, m, cfg, cam)
+    with torch.no_grad():
+        d1 = scene.sdf(v + shift + move, cfg.sdf_resolution)
+    assert float(d1.min()) > min(-0.01, float(d_gt.min()) - 1e-6)
+    assert note["steps"] >= 1
+    uv1, _ = cam.project(k + shift + move)
+    width = cam.width
+    moved_ray = float((uv1 - uv0).norm(dim=1).max())
+    assert moved_ray < 0.01 * width
+    # the direction is the ray's (parallel to it)
+    cos = float(move @ ray) / float(move.norm())
+    assert abs(cos) > 1 - 1e-9
+    # the normal push moves the keypoints more in the image
+    move_n, _ = push_out(scene, sunk, m, cfg)
+    uv2, _ = cam.project(k + shift + move_n)
+    assert float((uv2 - uv0).norm(dim=1).max()) > 1.5 * moved_ray
+
+
 def test_hand_change_zero_for_unchanged_hand_and_counts_moves():
     from easyhoi.optim.hand_change import hand_change
     from easyhoi.structures import Camera

@@ -43,13 +43,23 @@ from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, 
 from easyhoi.optim.state import Scene, hard_iou
 from easyhoi.structures import Camera, HandParams
 
-__all__ = ["PUSH_OUT_BALANCE", "PUSH_OUT_MAX", "fit_refine", "push_out", "refine_terms"]
+__all__ = [
+    "PUSH_OUT_BALANCE",
+    "PUSH_OUT_MAX",
+    "PUSH_OUT_MIN_COS",
+    "fit_refine",
+    "push_out",
+    "refine_terms",
+]
 
 #: :func:`push_out` stops when the depth-weighted normals cancel to below this fraction of the
 #: summed depths (penetration from opposite sides: moving the whole hand cannot free it).
 PUSH_OUT_BALANCE = 0.3
 #: Largest total move of :func:`push_out`, normalised object units (a fifth of the object).
 PUSH_OUT_MAX = 0.2
+#: Smallest cosine between the way out and the camera ray used to size a move along the ray
+#: (a surface seen edge-on: the depth move that frees it is long and :data:`PUSH_OUT_MAX` caps it).
+PUSH_OUT_MIN_COS = 0.25
 
 
 def refine_terms(
@@ -133,17 +143,26 @@ def contact_radii(scene: Scene, cfg: RefineStageConfig):
 
 
 def push_out(
-    scene: Scene, params: HandParams, metric_scale: float, cfg: RefineStageConfig
+    scene: Scene,
+    params: HandParams,
+    metric_scale: float,
+    cfg: RefineStageConfig,
+    camera: Camera | None = None,
 ) -> tuple[torch.Tensor, dict]:
-    """Rigid move that takes a penetrating hand out of the object along the object's normal.
+    """Rigid move that takes a penetrating hand out of the object.
 
     Up to ``push_out_steps`` times: the vertices deeper than ``penetration_threshold`` give the
-    direction (the SDF gradients at them, weighted by their depth, summed and normalised) and
-    the hand moves along it by the largest depth. Stops when nothing penetrates, when a move
-    does not reduce the summed depth of the penetrating vertices (it is undone), or when the
-    gradients cancel (a hand wrapped round the object: only its fingers can open), or after
-    :data:`PUSH_OUT_MAX` normalised units in all. The articulation is untouched, so a grasp that
-    sank in as a whole (a depth or scale error) comes out without bending fingers.
+    way out (the SDF gradients at them, weighted by their depth, summed and normalised: ``n``)
+    and the hand moves until the largest depth is covered along ``n``. With ``camera`` (object
+    frame) the move is along the camera ray through the hand's centroid, by
+    ``depth / (n . ray)`` (the ray's cosine with ``n`` floored at :data:`PUSH_OUT_MIN_COS`): a
+    single photo fixes where the hand is in the image but hardly how far it is, so the depth is
+    what may give; moving across the rays would shift every joint in the image. Without
+    ``camera`` it moves along ``n``. Stops when nothing penetrates, when a move does not reduce
+    the summed depth of the penetrating vertices (it is undone), or when the gradients cancel (a
+    hand wrapped round the object: only its fingers can open), or after :data:`PUSH_OUT_MAX`
+    normalised units in all. The articulation is untouched, so a grasp that sank in as a whole
+    (a depth or scale error) comes out without bending fingers.
 
     Returns:
         (3,) translation in object units and a JSON-ready note (steps, distance in normalised
@@ -151,6 +170,11 @@ def push_out(
     """
     with torch.no_grad():
         verts = scene.hand_model(params).vertices[0] / metric_scale
+    ray = None
+    if camera is not None:
+        eye = camera.center.detach().to(verts.dtype)
+        ray = verts.mean(0) - eye
+        ray = ray / ray.norm().clamp_min(1e-12)
     total = torch.zeros(3, dtype=verts.dtype, device=verts.device)
     steps, last = 0, None
     for _ in range(cfg.push_out_steps + 1):
@@ -172,7 +196,12 @@ def push_out(
         if norm < PUSH_OUT_BALANCE * float(depth.sum()):
             break
         step = float(depth.max()) * scene.extent
-        total = total + n / norm * step
+        if ray is None:
+            total = total + n / norm * step
+        else:
+            cos = float(n @ ray) / norm
+            sign = 1.0 if cos >= 0 else -1.0
+            total = total + ray * (sign * step / max(abs(cos), PUSH_OUT_MIN_COS))
         steps += 1
         if float(total.norm()) > PUSH_OUT_MAX * scene.extent:
             total = total * (PUSH_OUT_MAX * scene.extent / float(total.norm()))
@@ -206,7 +235,8 @@ def fit_refine(
     p0 = params0.detach().to(dtype=dt)
     theta0 = (p0.pose if theta0 is None else theta0.to(dt)).detach().clone()
     go = p0.global_orient.clone().requires_grad_(cfg.optimise_global)
-    push = push_out(scene, p0, metric_scale, cfg) if cfg.push_out_steps > 0 else None
+    camera = camera.detach().to(dt)
+    push = push_out(scene, p0, metric_scale, cfg, camera) if cfg.push_out_steps > 0 else None
     tr0 = p0.transl.clone() if push is None else p0.transl + float(metric_scale) * push[0]
     unit = float(scene.extent) * float(metric_scale)  # metres per normalised object unit
     delta = torch.zeros_like(tr0).requires_grad_(cfg.optimise_global)
@@ -222,7 +252,6 @@ def fit_refine(
     opt = Adam(groups) if groups else None
     loop = StageLoop("refine", cfg.max_iters, optim_cfg.history_every, progress)
     current = lambda: p0.__class__(go, tr0 + unit * delta, pose, p0.betas, p0.side)  # noqa: E731
-    camera = camera.detach().to(dt)
 
     phases_begun = []
 
