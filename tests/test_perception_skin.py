@@ -19,26 +19,10 @@ from easyhoi.perception.skin import (
     palm_length,
     skin_model,
 )
+from tests.test_perception_masks import KP, iou
 
 SKIN = np.array((220, 170, 140), np.float64)
 BLUE = (40, 60, 180)
-
-# a right hand seen from the palm side, fingers up (OpenPose order), wrist at the bottom
-KP = np.array(
-    [
-        (120, 210),
-        (100, 195), (85, 180), (75, 165), (68, 152),
-        (102, 160), (100, 140), (99, 127), (98, 115),
-        (117, 158), (117, 136), (117, 122), (117, 110),
-        (132, 160), (133, 140), (134, 127), (135, 116),
-        (146, 165), (148, 150), (149, 140), (150, 130),
-    ],
-    dtype=np.float64,
-)  # fmt: skip
-
-
-def iou(a, b):
-    return float((a & b).sum()) / max(1, float((a | b).sum()))
 
 
 def tilted(kp, factor):

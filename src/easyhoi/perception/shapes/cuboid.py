@@ -48,14 +48,24 @@ def _silhouette(x: np.ndarray, shape) -> np.ndarray:
     """Pixels whose centre lies inside the convex hull of the projected corners."""
     hull = cv2.convexHull(_corners(x)[:, :2].astype(np.float32)).reshape(-1, 2)
     hull = hull.astype(np.float64)
+    out = np.zeros(shape, bool)
+    # only the pixels whose centre (index + 0.5) lies within the hull's bounding box can be inside
+    r0 = max(0, int(np.ceil(hull[:, 1].min() - 0.5)))
+    r1 = min(shape[0], int(np.floor(hull[:, 1].max() - 0.5)) + 1)
+    c0 = max(0, int(np.ceil(hull[:, 0].min() - 0.5)))
+    c1 = min(shape[1], int(np.floor(hull[:, 0].max() - 0.5)) + 1)
+    if r0 >= r1 or c0 >= c1:
+        return out
     v, u = _centres(shape)
-    inside = np.ones(shape, bool)
+    v, u = v[r0:r1, c0:c1], u[r0:r1, c0:c1]
+    inside = np.ones(v.shape, bool)
     area2 = np.sum(hull[:, 0] * np.roll(hull[:, 1], -1) - np.roll(hull[:, 0], -1) * hull[:, 1])
     sign = 1.0 if area2 >= 0 else -1.0
     for p, q in zip(hull, np.roll(hull, -1, axis=0), strict=True):
         cross = (q[0] - p[0]) * (v - p[1]) - (q[1] - p[1]) * (u - p[0])
         inside &= sign * cross >= 0
-    return inside
+    out[r0:r1, c0:c1] = inside
+    return out
 
 
 _CENTRES: dict = {}
