@@ -66,7 +66,6 @@ from easyhoi.config import ContactStageConfig, OptimConfig
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import HOIInput, StageResult
 from easyhoi.optim.adam import Adam
-from easyhoi.optim.hand_terms import keypoint_loss
 from easyhoi.optim.loop import StageLoop, early_stop, run_phases
 from easyhoi.optim.losses import soft_iou_loss
 from easyhoi.optim.placement import camera_hand_to_object, hand_in_camera, move_hand, rest_wrist
@@ -145,7 +144,6 @@ class ContactState:
         self.params_cam = params_cam.detach().to(dtype=dt)
         with torch.no_grad():
             self.v0 = scene.hand_model(self.params_cam).vertices[0]
-            self.k0 = scene.hand_model(self.params_cam).keypoints[0]
         self.c0 = self.v0.mean(0)
         self.L = float((self.v0.max(0).values - self.v0.min(0).values).max())
         self.r = torch.zeros(3, dtype=dt, device=scene.device, requires_grad=True)
@@ -156,11 +154,6 @@ class ContactState:
         """(V, 3) hand vertices in the object camera's frame, metres."""
         Rr = axis_angle_to_matrix(self.r)
         return (self.v0 - self.c0) @ Rr.T + self.c0 + self.L * self.delta
-
-    def keypoints_cam(self) -> torch.Tensor:
-        """(21, 3) hand keypoints in the object camera's frame, metres."""
-        Rr = axis_angle_to_matrix(self.r)
-        return (self.k0 - self.c0) @ Rr.T + self.c0 + self.L * self.delta
 
     def verts_obj(self) -> torch.Tensor:
         """(V, 3) hand vertices in the object frame, object units."""
@@ -378,14 +371,6 @@ def fit_contact(
     registrations: list[dict] = []
     # the touching part of the score: the scan's contact band, or the closest vertex
     score_band = cfg.scan_band if cfg.score_band else 0.0
-    # the detector's keypoints hold the hand where the photo shows it, balanced against the mask
-    # as in stage 3 (keypoint weight / hand-mask weight there; the mask term has weight 1 here)
-    rc, kp = optim_cfg.refine, scene.keypoints
-    kp_weight = 0.0
-    if kp is not None and rc.keypoint_weight > 0 and rc.hand_mask_weight > 0:
-        kp_weight = rc.keypoint_weight / rc.hand_mask_weight
-        H, W = scene.image_size
-        kp_camera = _origin_camera(state.camera.resized(W, H))
 
     def begin(frac):
         h, w = scene.render_size(frac, optim_cfg.render_size)
@@ -426,11 +411,6 @@ def fit_contact(
         loss = iou
         cdist = _touch(scene, verts.detach(), sdf_res, score_band)
         terms = {"iou": float(iou.detach()), "contact_dist": cdist}
-        if kp_weight > 0:
-            uv, _ = kp_camera.project(state.keypoints_cam())
-            kp_term = keypoint_loss(uv, kp.points, kp.size, rc.keypoint_sigma, kp.confidence)
-            loss = loss + kp_weight * kp_term
-            terms["keypoints"] = float(kp_term.detach())
         if cfg.rotation_prior_weight > 0:
             prior = _rot_prior(state, cfg)
             loss = loss + prior
