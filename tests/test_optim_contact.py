@@ -261,9 +261,7 @@ def test_score_band_keeps_a_held_grasp_on_the_object(held_grasp):
     short = dict(max_iters=40, register_at=(10,), patience=10)
     ends = {}
     for score_band in (True, False):
-        # the scoring alone is under test: no keypoint term holding the hand in place
-        cfg = replace(fast, contact=replace(fast.contact, score_band=score_band, **short),
-                      refine=replace(fast.refine, keypoint_weight=0.0))  # fmt: skip
+        cfg = replace(fast, contact=replace(fast.contact, score_band=score_band, **short))
         p, _, _ = initial_hand(scene, inp, cam, fast.render_size, cfg.contact)
         st = ContactState(scene, p, cam, m_gt)
         start = _touch(scene, st.verts_obj().detach(), 48, 0.02)
