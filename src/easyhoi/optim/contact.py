@@ -9,16 +9,14 @@ hand along the camera rays (the depth relative to the object, which the image do
 
 Initialisation from the image evidence (:func:`initial_hand`): the estimator's hand is moved to
 the object camera so that its centroid keeps its pixel and its apparent size (depth scaled by
-the ratio of focal lengths), turned with the ray through that pixel (the photo fixes how the
-hand looks from its line of sight, not its angle to the optical axis), and its translation
-re-solved so that its 21 joints project where the estimator's did (:func:`keypoint_shift`);
-``m`` is the median ratio of the hand's metric depth to the object's depth (object units) over
-the pixels where the rendered hand overlaps M^_o, taking the object's FRONT surface where M_h
-shows the hand (the hand is in front there) and its BACK surface (farthest of ``peel_layers``
-hits) where the hand is hidden: the hand is put at the depth where it meets the object in the
-photo (not at the object's centre). That depth is then refined by :func:`scan_scale` (41 depths
-from 1/2 to 2 times it, scored by the hand-mask IoU plus a touching term: the closest vertex on
-the surface, or with ``scan_band`` > 0 the contact zones on the surface).
+the ratio of focal lengths); ``m`` is the median ratio of the hand's metric depth to the
+object's depth (object units) over the pixels where the rendered hand overlaps M^_o, taking the
+object's FRONT surface where M_h shows the hand (the hand is in front there) and its BACK
+surface (farthest of ``peel_layers`` hits) where the hand is hidden: the hand is put at the
+depth where it meets the object in the photo (not at the object's centre). That depth is then
+refined by :func:`scan_scale` (41 depths from 1/2 to 2 times it, scored by the hand-mask IoU
+plus a touching term: the closest vertex on the surface, or with ``scan_band`` > 0 the
+contact zones on the surface).
 
 Loop (Adam, coarse-to-fine phases sharing ``max_iters``):
 
@@ -76,54 +74,12 @@ from easyhoi.structures import Camera, HandParams
 
 logger = logging.getLogger(__name__)
 
-__all__ = [
-    "ContactState",
-    "fit_contact",
-    "initial_hand",
-    "keypoint_shift",
-    "ray_rotation",
-    "scan_scale",
-]
+__all__ = ["ContactState", "fit_contact", "initial_hand", "scan_scale"]
 
 #: Factors of the initial metric scale tried by :func:`scan_scale` (log-spaced, 1/2 to 2).
 SCALE_SCAN = tuple(float(x) for x in np.geomspace(0.5, 2.0, 41))
 #: Bounds of the metric-scale change one registration may apply (guards degenerate ICP).
 MAX_SCALE_STEP = 2.0
-
-
-def ray_rotation(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """(3, 3) smallest rotation turning the direction of (3,) ``a`` onto that of ``b``."""
-    u = a / a.norm().clamp_min(1e-12)
-    v = b / b.norm().clamp_min(1e-12)
-    axis = torch.linalg.cross(u, v)
-    sin, cos = axis.norm(), (u * v).sum()
-    if float(sin) < 1e-12:
-        return torch.eye(3, dtype=a.dtype, device=a.device)
-    return axis_angle_to_matrix(axis / sin * torch.atan2(sin, cos))
-
-
-def keypoint_shift(points: torch.Tensor, uv: torch.Tensor, camera: Camera) -> torch.Tensor:
-    """(3,) translation ``s`` whose ``points + s`` (camera frame) project closest to ``uv``.
-
-    With another focal length than the estimator's, keeping the centroid's pixel and apparent
-    size still moves the joints in the image (the hand's own depth extent is a different share
-    of its distance); the image positions of the joints are what the photo fixes, so the
-    translation is re-solved for them. Linear least squares in the algebraic error
-    ``fx (X + s_x) - (u - cx) (Z + s_z) = 0`` (and the same in y), exact when the points fit.
-
-    Args:
-        points: (N, 3) camera-frame points.
-        uv: (N, 2) target pixels.
-        camera: Camera with identity extrinsics (its intrinsics are used).
-    """
-    K = camera.K.to(points.dtype)
-    du, dv = uv[:, 0] - K[0, 2], uv[:, 1] - K[1, 2]
-    zero, one = torch.zeros_like(du), torch.ones_like(du)
-    A = torch.cat([torch.stack([K[0, 0] * one, zero, -du], 1),
-                   torch.stack([zero, K[1, 1] * one, -dv], 1)])  # fmt: skip
-    b = torch.cat([du * points[:, 2] - K[0, 0] * points[:, 0],
-                   dv * points[:, 2] - K[1, 1] * points[:, 1]])  # fmt: skip
-    return torch.linalg.lstsq(A, b[:, None]).solution[:, 0]
 
 
 def _origin_camera(camera: Camera) -> Camera:
@@ -297,15 +253,8 @@ def initial_hand(
     cam_h0, cam_o0 = _origin_camera(hand_camera), _origin_camera(camera.to(dt))
     uv, z = cam_h0.project(c)
     c_new = cam_o0.unproject(uv, z * k)
-    # the photo shows the hand as seen along its line of sight: when the new intrinsics turn the
-    # ray through the centroid's pixel, the hand turns with it (same view of the hand)
-    turn = ray_rotation(c, c_new)
-    wrist = rest_wrist(model, p_hc.betas).to(dt)
-    p_oc = move_hand(p_hc, turn, c_new - turn @ c, wrist)
-    with torch.no_grad():
-        target, _ = cam_h0.project(model(p_hc).keypoints[0])
-        shift = keypoint_shift(model(p_oc).keypoints[0], target, cam_o0)
-    p_oc = HandParams(p_oc.global_orient, p_oc.transl + shift, p_oc.pose, p_oc.betas, p_oc.side)
+    p_oc = HandParams(p_hc.global_orient, p_hc.transl + (c_new - c), p_hc.pose, p_hc.betas,
+                      p_hc.side)  # fmt: skip
     h, w = scene.render_size(1.0, render_size)
     with torch.no_grad():
         verts = model(p_oc).vertices[0]
