@@ -131,13 +131,37 @@ def rasterize(uv: np.ndarray, faces: np.ndarray, shape: tuple[int, int]) -> np.n
 
 
 def polygons_mask(polys, shape: tuple[int, int]) -> np.ndarray:
-    """(h, w) bool union of convex polygons (each (k, 2) working pixels), area-reduced."""
+    """(h, w) bool union of convex polygons (each (k, 2) working pixels), area-reduced.
+
+    ``polys`` is a sequence of (k, 2) arrays or one (n, k, 2) array. Every polygon is filled
+    at :data:`SUPERSAMPLE` x the resolution with 4 fractional bits; a pixel is in when at
+    least half of its sub-pixels are. The corners of consecutive polygons of one shape and
+    dtype are rounded in one array operation (elementwise, so the same values as one polygon
+    at a time), and the half-coverage test counts sub-pixels as integers (``2 * count >= k * k``
+    is ``mean >= 0.5`` exactly).
+    """
     k = SUPERSAMPLE
     out = np.zeros((shape[0] * k, shape[1] * k), np.uint8)
+    groups = [polys] if isinstance(polys, np.ndarray) else _same_size_groups(polys)
+    for group in groups:
+        q = np.round((np.asarray(group) * k - 0.5) * 16).astype(np.int32)
+        for corners in q:
+            cv2.fillConvexPoly(out, corners, 1, lineType=cv2.LINE_8, shift=4)
+    count = out.reshape(shape[0], k, shape[1], k).sum(axis=(1, 3), dtype=np.int32)
+    return 2 * count >= k * k
+
+
+def _same_size_groups(polys) -> list[list[np.ndarray]]:
+    """``polys`` split into runs of equal shape and dtype, in order."""
+    groups: list[list[np.ndarray]] = []
+    last = None
     for p in polys:
-        q = np.round((np.asarray(p) * k - 0.5) * 16).astype(np.int32)
-        cv2.fillConvexPoly(out, q, 1, lineType=cv2.LINE_8, shift=4)
-    return out.reshape(shape[0], k, shape[1], k).mean(axis=(1, 3)) >= 0.5
+        p = np.asarray(p)
+        if (p.shape, p.dtype) != last:
+            groups.append([])
+            last = p.shape, p.dtype
+        groups[-1].append(p)
+    return groups
 
 
 def fit_iou(sil: np.ndarray, wf: WorkFrame) -> float:
