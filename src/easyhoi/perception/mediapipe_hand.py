@@ -29,6 +29,8 @@ Conventions of the output (:class:`~easyhoi.perception.base.HandDetection`):
 from __future__ import annotations
 
 import contextlib
+import importlib
+import importlib.util
 import logging
 import math
 import os
@@ -37,7 +39,7 @@ import threading
 
 import numpy as np
 
-from easyhoi.errors import BackendError, InvalidInputError, require
+from easyhoi.errors import BackendError, InvalidInputError, MissingDependencyError
 from easyhoi.io.image import check_image
 from easyhoi.perception.base import HandDetection, register
 
@@ -111,6 +113,84 @@ def _quiet_native_stderr():
         os.close(devnull)
 
 
+#: Packages whose ``__init__`` only gathers convenience names: ``mediapipe`` imports every
+#: solution and the tasks API, ``mediapipe.python.solutions`` every solution, among them the
+#: drawing helpers, which import ``matplotlib.pyplot`` (together 0.5-0.6 s CPU, against 0.05 s
+#: for the modules the detector uses).
+_LEAN_PACKAGES = ("mediapipe", "mediapipe.python.solutions")
+_IMPORT_LOCK = threading.RLock()
+#: Specs of the packages registered without running their ``__init__`` (name -> spec).
+_PENDING_INIT: dict[str, object] = {}
+
+
+def _run_init(name: str) -> None:
+    """Run the ``__init__`` of a package imported lean, in place (once)."""
+    with _IMPORT_LOCK:
+        spec = _PENDING_INIT.pop(name, None)
+        if spec is None:
+            return
+        module = sys.modules[name]
+        module.__dict__.pop("__getattr__", None)
+        if name == "mediapipe":  # the real import order: every solution, then the package
+            _run_init("mediapipe.python.solutions")
+        spec.loader.exec_module(module)
+
+
+def _complete(name: str):
+    """Module ``__getattr__`` of a package imported lean: on the first name it lacks, its
+    ``__init__`` runs, then the name is looked up again."""
+
+    def __getattr__(attr: str):
+        _run_init(name)
+        return getattr(sys.modules[name], attr)
+
+    return __getattr__
+
+
+def mediapipe_module(name: str):
+    """Import ``name`` from the mediapipe wheel without the package-level ``__init__`` files.
+
+    In a process that has not imported ``mediapipe`` yet, ``mediapipe`` and
+    ``mediapipe.python.solutions`` are registered from their specs without running their
+    ``__init__`` (which only import every solution, the drawing helpers with matplotlib, and the
+    tasks API), then ``name`` is imported normally. Their ``__init__`` still runs, in place,
+    the first time code asks either package for a name it lacks (``mediapipe.solutions``,
+    ``mediapipe.__version__``...), so other users of the package see it whole.
+
+    Raises:
+        MissingDependencyError: mediapipe is not installed.
+    """
+    try:
+        with _IMPORT_LOCK:
+            if "mediapipe" not in sys.modules:
+                _register_lean()
+        return importlib.import_module(name)
+    except ImportError as exc:
+        raise MissingDependencyError("mediapipe", None, "hand keypoint detection") from exc
+
+
+def _register_lean() -> None:
+    registered = []
+    try:
+        for pkg in _LEAN_PACKAGES:
+            spec = importlib.util.find_spec(pkg)
+            if spec is None or spec.loader is None:
+                raise ImportError(f"no module named {pkg!r}")
+            module = importlib.util.module_from_spec(spec)
+            module.__getattr__ = _complete(pkg)
+            sys.modules[pkg] = module
+            _PENDING_INIT[pkg] = spec
+            registered.append(pkg)
+            parent, _, child = pkg.rpartition(".")
+            if parent:
+                setattr(sys.modules[parent], child, module)
+    except BaseException:
+        for pkg in registered:
+            sys.modules.pop(pkg, None)
+            _PENDING_INIT.pop(pkg, None)
+        raise
+
+
 def roi_from_keypoints(kp: np.ndarray, width: int, height: int) -> tuple[float, ...]:
     """Square, rotated crop around (21, 2) pixel keypoints, fingers pointing up in the crop.
 
@@ -156,7 +236,7 @@ class MediaPipeHands:
             raise InvalidInputError(f"model_complexity must be 0 or 1, got {model_complexity}")
         if max_hands < 1:
             raise InvalidInputError(f"max_hands must be >= 1, got {max_hands}")
-        self._mp = require("mediapipe", purpose="hand keypoint detection")
+        self._hands_api = mediapipe_module("mediapipe.python.solutions.hands")
         self.max_hands = int(max_hands)
         self.min_detection_confidence = float(min_detection_confidence)
         self.model_complexity = int(model_complexity)
@@ -198,7 +278,7 @@ class MediaPipeHands:
             key = ("palm", self.max_hands, self.model_complexity, self.min_detection_confidence)
             self._hands = _shared_graph(
                 key,
-                lambda: self._mp.solutions.hands.Hands(
+                lambda: self._hands_api.Hands(
                     static_image_mode=True,
                     max_num_hands=self.max_hands,
                     model_complexity=self.model_complexity,
@@ -220,8 +300,8 @@ class MediaPipeHands:
 
     # -- pass 2 --------------------------------------------------------------------------------
     def _run_roi(self, image: np.ndarray, roi: tuple[float, ...]):
-        from mediapipe.framework.formats import rect_pb2
-        from mediapipe.python import solution_base
+        rect_pb2 = mediapipe_module("mediapipe.framework.formats.rect_pb2")
+        solution_base = mediapipe_module("mediapipe.python.solution_base")
 
         if self._roi is None:
             self._roi = _shared_graph(
