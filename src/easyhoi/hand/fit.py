@@ -389,6 +389,40 @@ def _place_by_2d(model, params: HandParams, k2, cam) -> torch.Tensor:
     return params.transl + target_centre - current_centre
 
 
+def _residuals_and_jacobian(f, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Residuals ``f(x)`` (B, R) and their Jacobian (B, R, P), from one forward pass.
+
+    The samples are independent, so the Jacobian of ``sum_b f(x)_b`` w.r.t. ``x`` (R, B, P)
+    holds sample b's block at ``[:, b]``. Its R rows are vector-Jacobian products with the
+    standard basis, run as one batched backward pass: what
+    ``torch.autograd.functional.jacobian(..., vectorize=True)`` does, minus the shape check of
+    ``torch.autograd.grad`` that imports torch's symbolic-shape module and sympy (0.25 s CPU
+    in a fresh process; the same values to the last bit, tested). The residuals come from the
+    same forward pass (the same operations as a separate one without gradients).
+    """
+    z = x.detach().requires_grad_(True)
+    with torch.enable_grad():
+        out = f(z)
+    flat = out.sum(0)
+    basis = flat.new_zeros(flat.numel(), flat.numel())
+    basis.diagonal(0).fill_(1)
+    from torch import _vmap_internals
+
+    run = getattr(torch.autograd.graph, "_engine_run_backward", None)
+    vmap = getattr(_vmap_internals, "_vmap", None)
+    if run is None or vmap is None:  # another torch: the public path
+        (J,) = torch.autograd.grad(flat, z, basis, is_grads_batched=True)
+    else:
+
+        def vjp(g):
+            return run((flat,), (g,), False, False, (z,), True, accumulate_grad=False)
+
+        (J,) = vmap(vjp, 0, 0, allow_none_pass_through=True)(basis)
+    if J is None:  # x does not reach the residuals
+        J = torch.zeros((flat.numel(), *x.shape), dtype=x.dtype)
+    return out.detach(), J.detach().permute(1, 0, 2)
+
+
 def _levenberg_marquardt(residuals, irls_weights, x, schedule, lam=1e-3):
     """Batched Levenberg-Marquardt with per-sample damping and IRLS robust weights.
 
@@ -407,11 +441,8 @@ def _levenberg_marquardt(residuals, irls_weights, x, schedule, lam=1e-3):
     for anneal in schedule:
         wts = irls_weights(x, anneal)
         f = functools.partial(residuals, kp_weights=wts)
-        r = f(x).detach()
+        r, J = _residuals_and_jacobian(f, x)
         cost = (r**2).sum(1)
-        # samples are independent, so d(sum_b r_b)/dx_b is sample b's block: (R, B, P)
-        J = torch.autograd.functional.jacobian(lambda z, f=f: f(z).sum(0), x, vectorize=True)
-        J = J.permute(1, 0, 2)  # (B, R, P)
         JtJ = J.transpose(1, 2) @ J
         g = (J.transpose(1, 2) @ r[..., None])[..., 0]
         diag = torch.diagonal(JtJ, dim1=1, dim2=2)
