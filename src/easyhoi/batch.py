@@ -674,14 +674,12 @@ class ReconstructWorker:
     """
 
     #: Imported by the local engine's fork server before it forks the worker processes
-    #: (:mod:`easyhoi.distributed`): torch, the pipeline's own modules, trimesh and the part
-    #: of torch that the hand fit's batched Jacobian imports on first use (sympy), about 2.3 s
+    #: (:mod:`easyhoi.distributed`): torch, the pipeline's own modules and trimesh, about 2 s
     #: of CPU that every worker would otherwise spend on its own. The native perception and
     #: kernel libraries (MediaPipe, OpenCV, numba) are imported by each worker itself, after
     #: the fork, so that no native library state is shared between processes.
     preload = (
         "torch",
-        "torch.fx.experimental.symbolic_shapes",
         "trimesh",
         "easyhoi.pipeline",
         "easyhoi.perception.chain",
