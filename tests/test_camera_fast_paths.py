@@ -147,3 +147,21 @@ def test_project_faces_matches_the_definition_with_gradients(drop):
     assert torch.equal(a_keep, b_keep) and torch.equal(a_uv, b_uv) and torch.equal(a_z, b_z)
     assert (a_keep.shape[0] < 100) == drop
     assert torch.equal(grads[0][0], grads[1][0]) and torch.equal(grads[0][1], grads[1][1])
+
+
+def test_camera_stage_parameters_give_the_validated_camera():
+    from easyhoi.optim.camera import _CameraParams
+
+    params = _CameraParams(_camera(), torch.tensor([0.02, 0.01, 1.9]), 0.3, optimise_focal=True)
+    g = torch.Generator().manual_seed(4)
+    with torch.no_grad():
+        for p in params.tensors():
+            p.copy_(0.1 * torch.randn(p.shape, generator=g, dtype=p.dtype))
+    cam = params.camera()
+    ref = Camera(cam.K, cam.R, cam.t, cam.width, cam.height)  # the validating constructor
+    for f in ("K", "R", "t"):
+        assert torch.equal(getattr(cam, f), getattr(ref, f))
+    assert (cam.width, cam.height) == (64, 48) and cam.fx > 0 and cam.fy > 0
+    cam.project(torch.tensor([[0.0, 0.1, 0.5]], dtype=torch.float64))[0].sum().backward()
+    assert all(p.grad is not None and torch.isfinite(p.grad).all() for p in params.tensors())
+    assert params.delta.grad.abs().sum() > 0

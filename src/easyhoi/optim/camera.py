@@ -217,7 +217,10 @@ class _CameraParams:
         K = c0.K + torch.diag(torch.cat([df, df.new_zeros(1)]))
         R = axis_angle_to_matrix(self.r) @ c0.R
         t = c0.t + c0.R @ self.center - R @ self.center + self.extent * self.delta
-        return Camera(K, R, t, c0.width, c0.height)
+        # valid by construction (focals f0 * exp(log_f) > 0, a rotation, the size of a validated
+        # camera), so not checked again every iteration; non-finite values surface as a
+        # non-finite loss, which the stage loop reports
+        return Camera._trusted(K, R, t, c0.width, c0.height)
 
     def state(self) -> tuple[torch.Tensor, ...]:
         return snapshot((self.log_f, self.r, self.delta))
