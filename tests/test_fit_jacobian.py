@@ -1,5 +1,6 @@
-"""The keypoint fit's Jacobian: the same bits as torch.autograd.functional.jacobian, and no
-import of torch's symbolic-shape module (sympy) in a fresh process."""
+"""The keypoint fit's Jacobian, taken part by part: the same bits as
+torch.autograd.functional.jacobian of all residuals, and no import of torch's symbolic-shape
+module (sympy) in a fresh process."""
 
 from __future__ import annotations
 
@@ -15,8 +16,13 @@ from easyhoi.hand.openhand import OpenHand
 from easyhoi.structures import Camera, HandParams
 
 
-def _reference(f, x):
-    """The previous definition: a separate forward pass and the vectorised autograd Jacobian."""
+def _reference(fs, x):
+    """The definition: the stacked residuals from a separate forward pass and the vectorised
+    autograd Jacobian of all of them at once."""
+
+    def f(z):
+        return torch.cat([g(z) for g in fs], dim=1)
+
     r = f(x).detach()
     J = torch.autograd.functional.jacobian(lambda z: f(z).sum(0), x, vectorize=True)
     return r, J.permute(1, 0, 2)
@@ -43,17 +49,20 @@ def test_jacobian_equals_autograd_functional_bit_for_bit():
     w = torch.rand(2, 21, 2, generator=g, dtype=torch.float64)
     kp3, _, _ = _target(model, 1)
 
-    def residuals(x, kp_weights):
+    def keypoints(x, kp_weights):
         params = HandParams(x[:, :3], x[:, 3:6], x[:, 6:51], torch.zeros(2, 10, dtype=x.dtype))
         kp = model(params, vertex_ids=torch.zeros(0, dtype=torch.long)).keypoints
-        return torch.cat([((kp - kp3) * kp_weights[..., :1]).reshape(2, -1), x[:, 6:51]], 1)
+        return ((kp - kp3) * kp_weights[..., :1]).reshape(2, -1)
+
+    def prior(x, kp_weights):
+        return torch.cat([x[:, 6:51] * 0.3, torch.relu(x[:, 6:9] - 0.01)], dim=1)
 
     x = 0.1 * torch.randn(2, 51, generator=g, dtype=torch.float64)
     x[:, 3:6] += torch.tensor([0.0, 0.0, 0.5], dtype=torch.float64)
-    f = functools.partial(residuals, kp_weights=w)
-    r, J = fit_mod._residuals_and_jacobian(f, x)
-    r_ref, J_ref = _reference(f, x)
-    assert J.shape == (2, 63 + 45, 51)
+    fs = [functools.partial(keypoints, kp_weights=w), functools.partial(prior, kp_weights=w)]
+    r, J = fit_mod._residuals_and_jacobian(fs, x)
+    r_ref, J_ref = _reference(fs, x)
+    assert J.shape == (2, 63 + 45 + 3, 51)
     assert torch.equal(r, r_ref) and torch.equal(J, J_ref)
     assert J.abs().max() > 0.1  # a real Jacobian (the pose rows hold the identity)
 

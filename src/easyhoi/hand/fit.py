@@ -178,8 +178,8 @@ def fit_keypoints(
         betas = x[:, 51:61] if config.fit_shape else p0.betas
         return HandParams(x[:, :3], x[:, 3:6], x[:, 6:51], betas)
 
-    def residuals(x: torch.Tensor, kp_weights: torch.Tensor) -> torch.Tensor:
-        """(B, R) stacked, scaled residuals; ``kp_weights`` (B, 21, 2) are IRLS x confidence."""
+    def keypoint_residuals(x: torch.Tensor, kp_weights: torch.Tensor) -> torch.Tensor:
+        """(B, R_kp) scaled keypoint residuals; ``kp_weights`` (B, 21, 2) are IRLS x confidence."""
         kp = model(unpack(x), vertex_ids=_NO_VERTS).keypoints
         parts = []
         if k3 is not None:
@@ -196,7 +196,11 @@ def fit_keypoints(
                 * (config.weight_2d * kp_weights[..., 1:2]).sqrt()
             )
             parts.append(r.reshape(B, -1))
-        parts.append(x[:, 6:51] * config.pose_prior**0.5)
+        return torch.cat(parts, dim=1)
+
+    def prior_residuals(x: torch.Tensor, kp_weights: torch.Tensor) -> torch.Tensor:
+        """(B, R_prior) residuals of the pose, anatomy and shape priors (the model not used)."""
+        parts = [x[:, 6:51] * config.pose_prior**0.5]
         if anatomy is not None:
             aa = x[:, 6:51].reshape(B, 15, 1, 3)
             comp = (aa * anatomy.axes).sum(-1)  # (B, 15, 3): flexion, twist, sideways
@@ -230,6 +234,7 @@ def fit_keypoints(
     schedule = [10.0] * (config.iterations // 3) + [1.0] * (
         config.iterations - config.iterations // 3
     )
+    residuals = (keypoint_residuals, prior_residuals)  # stacked in this order
     x, last = _levenberg_marquardt(residuals, irls_weights, x, schedule)
 
     with torch.no_grad():
@@ -389,17 +394,27 @@ def _place_by_2d(model, params: HandParams, k2, cam) -> torch.Tensor:
     return params.transl + target_centre - current_centre
 
 
-def _residuals_and_jacobian(f, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Residuals ``f(x)`` (B, R) and their Jacobian (B, R, P), from one forward pass.
+def _residuals_and_jacobian(fs, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Residuals (B, R) and their Jacobian (B, R, P): ``fs`` stacked, one forward pass each.
 
     The samples are independent, so the Jacobian of ``sum_b f(x)_b`` w.r.t. ``x`` (R, B, P)
-    holds sample b's block at ``[:, b]``. Its R rows are vector-Jacobian products with the
-    standard basis, run as one batched backward pass: what
-    ``torch.autograd.functional.jacobian(..., vectorize=True)`` does, minus the shape check of
-    ``torch.autograd.grad`` that imports torch's symbolic-shape module and sympy (0.25 s CPU
-    in a fresh process; the same values to the last bit, tested). The residuals come from the
-    same forward pass (the same operations as a separate one without gradients).
+    holds sample b's block at ``[:, b]``. Its rows are vector-Jacobian products with the
+    standard basis, run as one batched backward pass per part of the residuals: what
+    ``torch.autograd.functional.jacobian(..., vectorize=True)`` does on the stacked residuals
+    (the batched backward costs per row, and a prior's rows no longer travel through the hand
+    model's graph as zeros), minus the shape check of ``torch.autograd.grad`` that imports
+    torch's symbolic-shape module and sympy (0.25 s CPU in a fresh process). The same values to
+    the last bit (tested); the residuals come from the same forward passes.
     """
+    outs, jacs = [], []
+    for f in fs:
+        out, J = _jacobian_part(f, x)
+        outs.append(out)
+        jacs.append(J)
+    return torch.cat(outs, dim=1), torch.cat(jacs, dim=1)
+
+
+def _jacobian_part(f, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     z = x.detach().requires_grad_(True)
     with torch.enable_grad():
         out = f(z)
@@ -411,14 +426,14 @@ def _residuals_and_jacobian(f, x: torch.Tensor) -> tuple[torch.Tensor, torch.Ten
     run = getattr(torch.autograd.graph, "_engine_run_backward", None)
     vmap = getattr(_vmap_internals, "_vmap", None)
     if run is None or vmap is None:  # another torch: the public path
-        (J,) = torch.autograd.grad(flat, z, basis, is_grads_batched=True)
+        (J,) = torch.autograd.grad(flat, z, basis, is_grads_batched=True, allow_unused=True)
     else:
 
         def vjp(g):
             return run((flat,), (g,), False, False, (z,), True, accumulate_grad=False)
 
         (J,) = vmap(vjp, 0, 0, allow_none_pass_through=True)(basis)
-    if J is None:  # x does not reach the residuals
+    if J is None:  # x does not reach these residuals
         J = torch.zeros((flat.numel(), *x.shape), dtype=x.dtype)
     return out.detach(), J.detach().permute(1, 0, 2)
 
@@ -427,7 +442,8 @@ def _levenberg_marquardt(residuals, irls_weights, x, schedule, lam=1e-3):
     """Batched Levenberg-Marquardt with per-sample damping and IRLS robust weights.
 
     Args:
-        residuals: ``f(x (B, P), weights) -> (B, R)``; samples are independent.
+        residuals: parts ``f(x (B, P), weights) -> (B, R_i)`` of the residuals, stacked in
+            order; samples are independent.
         irls_weights: ``g(x, anneal) -> weights`` recomputed every iteration.
         x: (B, P) initial parameters.
         schedule: robust-kernel widening factor per iteration (its length = iterations).
@@ -440,8 +456,8 @@ def _levenberg_marquardt(residuals, irls_weights, x, schedule, lam=1e-3):
     cost = None
     for anneal in schedule:
         wts = irls_weights(x, anneal)
-        f = functools.partial(residuals, kp_weights=wts)
-        r, J = _residuals_and_jacobian(f, x)
+        fs = [functools.partial(part, kp_weights=wts) for part in residuals]
+        r, J = _residuals_and_jacobian(fs, x)
         cost = (r**2).sum(1)
         JtJ = J.transpose(1, 2) @ J
         g = (J.transpose(1, 2) @ r[..., None])[..., 0]
@@ -449,7 +465,7 @@ def _levenberg_marquardt(residuals, irls_weights, x, schedule, lam=1e-3):
         A = JtJ + lam[:, None, None] * torch.diag_embed(diag + 1e-9) + 1e-12 * eye
         delta = torch.linalg.solve(A, -g)
         with torch.no_grad():
-            new_cost = (f(x + delta) ** 2).sum(1)
+            new_cost = (torch.cat([f(x + delta) for f in fs], dim=1) ** 2).sum(1)
         better = new_cost < cost
         x = torch.where(better[:, None], x + delta, x).detach()
         lam = torch.where(better, lam * 0.3, lam * 10).clamp(1e-9, 1e9)
