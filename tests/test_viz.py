@@ -169,3 +169,17 @@ def test_loss_series_and_plot(result):
     im = _png(losses_png(result))
     assert im.size[0] == 3 * 420 + 4 * 10  # three stages with history, one row of panels
     assert 320 < im.size[1] < 420
+
+
+def test_scene_mesh_normals_shared_by_content():
+    s = trimesh.creation.icosphere(subdivisions=2, radius=0.7)
+    v, f = np.asarray(s.vertices), np.asarray(s.faces)
+    a = SceneMesh(v.copy(), f.copy(), (1, 2, 3), "a").corner_normals
+    b = SceneMesh(v.copy(), f.copy(), (9, 9, 9), "b").corner_normals
+    np.testing.assert_array_equal(a, corner_normals(v, f))
+    assert b is a and not a.flags.writeable  # one computation, shared read-only
+    v2 = v.copy()
+    v2[0] *= 1.5  # other content: its own normals
+    c = SceneMesh(v2, f, (1, 2, 3), "c").corner_normals
+    np.testing.assert_array_equal(c, corner_normals(v2, f))
+    assert not np.array_equal(c, a)

@@ -9,6 +9,9 @@ plain colour. Pixels no mesh covers keep the background exactly.
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -76,8 +79,36 @@ class SceneMesh:
 
     @cached_property
     def corner_normals(self) -> np.ndarray:
-        """(F, 3, 3) :func:`corner_normals` of the mesh, computed once (views reuse a mesh)."""
-        return corner_normals(self.vertices, self.faces)
+        """(F, 3, 3) :func:`corner_normals` of the mesh (read-only).
+
+        Computed once per mesh content in a process: the pictures of a result each build their
+        own meshes of the same hand and object (overlay, views, stages, masks), and the normals
+        cost more than the rest of a small picture's shading.
+        """
+        key = (
+            hashlib.blake2b(
+                self.vertices.tobytes() + self.faces.tobytes(), digest_size=16
+            ).digest(),
+            self.vertices.shape,
+            self.faces.shape,
+        )
+        with _NORMALS_LOCK:
+            if key in _NORMALS:
+                _NORMALS.move_to_end(key)
+                return _NORMALS[key]
+        n = corner_normals(self.vertices, self.faces)
+        n.flags.writeable = False
+        with _NORMALS_LOCK:
+            _NORMALS[key] = n
+            while len(_NORMALS) > _NORMALS_KEPT:
+                _NORMALS.popitem(last=False)
+        return n
+
+
+#: Corner normals of the meshes drawn last, by content (vertices and faces bytes, shapes).
+_NORMALS: OrderedDict[tuple, np.ndarray] = OrderedDict()
+_NORMALS_KEPT = 16
+_NORMALS_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
