@@ -27,12 +27,19 @@ With ``--warm`` all photos run one after the other in one process (as ``easyhoi 
 a.jpg b.jpg ...`` does): the rows are then each photo's CPU and wall seconds inside that
 process, and the medians leave out the first photo (which carries the start-up).
 
+With ``--compare OTHER_SRC`` every photo runs cold in both versions, one right after the
+other (the order alternating from photo to photo), so that both see the same load: on a
+shared machine the CPU seconds of a process grow with the load (shared caches and cores), and
+versions measured minutes apart differ by more than the change being measured. Both tables and
+the per-photo ratio are written.
+
 Usage::
 
     python benchmarks/bench_e2e.py                          # the photos of shared/data/images
     python benchmarks/bench_e2e.py --warm                   # all of them in one process
     python benchmarks/bench_e2e.py --photos a.jpg b.png --out /tmp/e2e
     python benchmarks/bench_e2e.py --src /path/to/other/checkout/src   # another version
+    python benchmarks/bench_e2e.py --compare /path/to/other/checkout/src  # both, interleaved
 
 Results: a markdown table on stdout, ``benchmarks/results/bench_e2e.md`` and ``.json``.
 """
@@ -177,6 +184,37 @@ def measure(photos: list[Path], out: Path, src: Path | None, warm: bool) -> list
     return rows
 
 
+def compare(photos: list[Path], out: Path, src: Path | None, other: Path) -> tuple[list, list]:
+    """Each photo cold in this version (``src``) and in ``other``, back to back, alternating
+    which runs first. Returns the rows of this version and of the other."""
+    mine, theirs = [], []
+    for i, photo in enumerate(photos):
+        order = [(src, mine, "this"), (other, theirs, "other")]
+        for path, rows, name in order if i % 2 == 0 else order[::-1]:
+            (rec,), cpu, wall = run_child([photo], out / name, path)
+            rec["process_cpu"], rec["process_wall"] = cpu, wall
+            rows.append(rec)
+            print(f"{photo.name} ({name}): {rec['status']}, CPU {cpu:.2f} s", file=sys.stderr)
+    return mine, theirs
+
+
+def ratio_table(mine: list[dict], theirs: list[dict], label: str, other: Path) -> str:
+    """Per-photo CPU seconds of both versions and their ratio, with the medians."""
+    head = f"CPU seconds per photo, this version ({label}) against {other}, back to back"
+    lines = [head, "", "| photo | this | other | this / other |", "|---|---|---|---|"]
+    pairs = [(a, b) for a, b in zip(mine, theirs, strict=True)
+             if a.get("status") == "ok" and b.get("status") == "ok"]  # fmt: skip
+    for a, b in pairs:
+        ca, cb = a["process_cpu"], b["process_cpu"]
+        lines.append(f"| {a['photo']} | {ca:.2f} | {cb:.2f} | {ca / cb:.3f} |")
+    if pairs:
+        ma = statistics.median(a["process_cpu"] for a, _ in pairs)
+        mb = statistics.median(b["process_cpu"] for _, b in pairs)
+        mr = statistics.median(a["process_cpu"] / b["process_cpu"] for a, b in pairs)
+        lines.append(f"| **median** | **{ma:.2f}** | **{mb:.2f}** | **{mr:.3f}** |")
+    return "\n".join(lines) + "\n"
+
+
 def _other(rec: dict) -> float:
     return rec["process_cpu"] - sum(c for c, _ in rec["steps"].values())
 
@@ -228,15 +266,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--label", default="", help="name of this measurement in the outputs")
     warm_help = "all photos in one process (the first one carries the start-up)"
     ap.add_argument("--warm", action="store_true", help=warm_help)
+    cmp_help = "also run another version's src folder, photo by photo, interleaved"
+    ap.add_argument("--compare", type=Path, default=None, metavar="OTHER_SRC", help=cmp_help)
     args = ap.parse_args(argv)
+    if args.compare is not None and args.warm:
+        ap.error("--compare measures cold processes; leave out --warm")
     photos = args.photos
     if photos is None:
         photos = sorted(p for p in DEFAULT_PHOTOS.iterdir() if p.suffix.lower() in
                         (".jpg", ".jpeg", ".png", ".webp"))  # fmt: skip
     load0 = tuple(round(x, 2) for x in os.getloadavg())
+    theirs = None
     with tempfile.TemporaryDirectory() as tmp:
         out = args.out or Path(tmp)
-        rows = measure(photos, out, args.src, args.warm)
+        if args.compare is not None:
+            rows, theirs = compare(photos, out, args.src, args.compare)
+        else:
+            rows = measure(photos, out, args.src, args.warm)
     load1 = tuple(round(x, 2) for x in os.getloadavg())
     label = args.label or "easyhoi"
     how = "all photos in one process" if args.warm else "one process per photo"
@@ -244,11 +290,16 @@ def main(argv: list[str] | None = None) -> int:
               f"{platform.machine()}, {os.cpu_count()} cores, "
               f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})")  # fmt: skip
     md = table(rows, (load0, load1), header)
+    if theirs is not None:
+        md += "\n" + table(theirs, (load0, load1), f"The other version ({args.compare})")
+        md += "\n" + ratio_table(rows, theirs, label, args.compare)
     print(md)
     RESULTS.mkdir(parents=True, exist_ok=True)
     stem = "bench_e2e" + (f"_{args.label}" if args.label else "")
     (RESULTS / f"{stem}.md").write_text(md)
     doc = {"rows": rows, "load_start": load0, "load_end": load1, "label": label}
+    if theirs is not None:
+        doc["other_rows"], doc["other_src"] = theirs, str(args.compare)
     (RESULTS / f"{stem}.json").write_text(json.dumps(doc, indent=1))
     return 0
 
