@@ -32,12 +32,12 @@ def test_lean_import_then_whole_package_on_demand():
     out = subprocess.run([sys.executable, "-c", _CHILD], capture_output=True, text=True,
                          check=True).stdout  # fmt: skip
     lean, version, whole, pyplot_after = ast.literal_eval(out.strip().splitlines()[-1])
-    assert lean == []  # no drawing helpers, other solutions, tasks API or matplotlib
+    assert lean == []  # no drawing utilities, other solutions, tasks API or matplotlib
     from importlib.metadata import version as dist_version
 
     assert version == dist_version("mediapipe")
     assert whole == [True, True, True, True]
-    assert pyplot_after  # the drawing helpers came with the whole package
+    assert pyplot_after  # the drawing utilities came with the whole package
 
 
 def test_whole_package_first_is_used_as_is():

@@ -115,7 +115,7 @@ def _quiet_native_stderr():
 
 #: Packages whose ``__init__`` only gathers convenience names: ``mediapipe`` imports every
 #: solution and the tasks API, ``mediapipe.python.solutions`` every solution, among them the
-#: drawing helpers, which import ``matplotlib.pyplot`` (together 0.5-0.6 s CPU, against 0.05 s
+#: drawing utilities, which import ``matplotlib.pyplot`` (together 0.5-0.6 s CPU, against 0.05 s
 #: for the modules the detector uses).
 _LEAN_PACKAGES = ("mediapipe", "mediapipe.python.solutions")
 _IMPORT_LOCK = threading.RLock()
@@ -152,7 +152,7 @@ def mediapipe_module(name: str):
 
     In a process that has not imported ``mediapipe`` yet, ``mediapipe`` and
     ``mediapipe.python.solutions`` are registered from their specs without running their
-    ``__init__`` (which only import every solution, the drawing helpers with matplotlib, and the
+    ``__init__`` (which only import every solution, the drawing utilities with matplotlib, and the
     tasks API), then ``name`` is imported normally. Their ``__init__`` still runs, in place,
     the first time code asks either package for a name it lacks (``mediapipe.solutions``,
     ``mediapipe.__version__``...), so other users of the package see it whole.
