@@ -8,6 +8,8 @@ pixels x faces product is never formed.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import torch
 
@@ -117,6 +119,12 @@ def project_faces(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Project a batch of meshes and drop faces with a vertex closer than ``near``.
 
+    Without gradients, the projection of the previous call of this thread is reused when it
+    was of the same tensors (same storage, layout and version counter: unchanged since) with
+    the same camera size and ``near``: the optimizer draws each hand twice per iteration, a
+    soft silhouette and then a z-buffer of the same vertices through the same camera. The
+    reused values are those a new projection gives (the same operations on the same numbers).
+
     Args:
         verts: (B, V, 3) world-space vertices.
         faces: (F, 3) long.
@@ -128,6 +136,41 @@ def project_faces(
         tri_z: (N, 3) camera z of the corners (differentiable).
         keep: (N,) long, flat index ``b * F + f`` of each kept face.
     """
+    key = _projection_key(verts, faces, camera, near)
+    last = getattr(_LAST_PROJECTION, "entry", None)
+    if key is not None and last is not None and not torch.is_grad_enabled():
+        if last[0][1:] == key[1:]:
+            tri_uv, tri_z, keep = last[1]
+            return tri_uv.detach(), tri_z.detach(), keep
+    out = _project_faces(verts, faces, camera, near)
+    _LAST_PROJECTION.entry = None if key is None else (key, out)
+    return out
+
+
+#: The last projection of each thread, with the tensors it was computed from (held, so that
+#: their storage cannot be freed and reused by other tensors while the entry lives).
+_LAST_PROJECTION = threading.local()
+
+
+def _projection_key(verts, faces, camera: Camera, near: float) -> tuple | None:
+    """What identifies a projection: the tensors themselves (held), their storage, layout
+    and version counters, the camera size and ``near``; None for tensors without a plain
+    storage (never reused)."""
+    tensors = (verts, faces, camera.K, camera.R, camera.t)
+    try:
+        layouts = tuple(
+            (x.untyped_storage().data_ptr(), x.storage_offset(), tuple(x.shape), x.stride(),
+             x.dtype, x.device, x._version)
+            for x in tensors
+        )  # fmt: skip
+    except (RuntimeError, NotImplementedError):
+        return None
+    return (tensors, layouts, camera.width, camera.height, float(near))
+
+
+def _project_faces(
+    verts: torch.Tensor, faces: torch.Tensor, camera: Camera, near: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     B = verts.shape[0]
     F = faces.shape[0]
     uv, z = camera.project(verts.to(camera.K.dtype))  # (B, V, 2), (B, V)
