@@ -132,3 +132,38 @@ def test_real_webp_photo_named_jpg(shared_data):
     assert img.original_size == (4242, 4242)
     assert img.rgb.shape == (1600, 1600, 3)
     assert img.scale == pytest.approx(1600 / 4242)
+
+
+def _reference_load(path, max_side=1600):
+    """The definition: orientation applied, converted to an RGB array, then downscaled."""
+    from PIL import ImageOps
+
+    from easyhoi.io.image import _to_rgb
+
+    img = ImageOps.exif_transpose(Image.open(path))
+    rgb = _to_rgb(img)
+    h, w = rgb.shape[:2]
+    if max(h, w) > max_side:
+        s = max_side / float(max(h, w))
+        size = (max(1, round(w * s)), max(1, round(h * s)))
+        rgb = np.asarray(Image.fromarray(rgb).resize(size, Image.Resampling.BOX))
+    return rgb
+
+
+@pytest.mark.parametrize("mode", ["RGB", "RGBA", "L"])
+def test_downscaled_photo_equals_the_array_path(tmp_path, mode):
+    rng = np.random.default_rng(5)
+    h, w = 700, 530
+    a = rng.integers(0, 256, (h, w, {"RGB": 3, "RGBA": 4, "L": 1}[mode]), dtype=np.uint8)
+    img = Image.fromarray(a[..., 0] if mode == "L" else a, mode)
+    exif = Image.Exif()
+    exif[0x0112] = 6  # rotated: the stored picture is turned by 90 degrees
+    path = tmp_path / f"p_{mode}.{'jpg' if mode == 'RGB' else 'png'}"
+    img.save(path, exif=exif) if mode == "RGB" else img.save(path)
+    got = load_image(path, max_side=400)
+    want = _reference_load(path, max_side=400)
+    assert got.rgb.shape == want.shape and got.rgb.shape[2] == 3
+    assert max(got.rgb.shape[:2]) == 400
+    np.testing.assert_array_equal(got.rgb, want)
+    if mode == "RGB":
+        assert got.rgb.shape[:2] == (303, 400)  # turned upright: wider than high

@@ -136,24 +136,27 @@ def load_image(path: str | Path, max_side: int | None = 1600) -> LoadedImage:
     img = _open(path)
     fmt = str(img.format or "unknown")
     try:
-        img = ImageOps.exif_transpose(img)
+        ImageOps.exif_transpose(img, in_place=True)  # no copy of an upright photo
     except Exception as exc:  # malformed EXIF must not make a readable photo unusable
         logger.warning("ignoring unreadable EXIF orientation of %s: %s", path, exc)
-    rgb = _to_rgb(img)
-    h, w = rgb.shape[:2]
+    w, h = img.size
     if min(h, w) < MIN_SIDE:
         raise InvalidInputError(
             f"image {path} is {w}x{h} pixels; at least {MIN_SIDE} px per side are needed"
         )
+    if max_side is not None and max_side < MIN_SIDE:
+        raise InvalidInputError(f"max_side must be >= {MIN_SIDE}, got {max_side}")
     scale = 1.0
-    if max_side is not None:
-        if max_side < MIN_SIDE:
-            raise InvalidInputError(f"max_side must be >= {MIN_SIDE}, got {max_side}")
-        if max(h, w) > max_side:
-            scale = max_side / float(max(h, w))
-            nw, nh = max(1, round(w * scale)), max(1, round(h * scale))
-            rgb = np.asarray(Image.fromarray(rgb).resize((nw, nh), Image.Resampling.BOX))
-            logger.info("downscaled %s from %dx%d to %dx%d", path, w, h, nw, nh)
+    if max_side is not None and max(h, w) > max_side:
+        scale = max_side / float(max(h, w))
+        nw, nh = max(1, round(w * scale)), max(1, round(h * scale))
+        if img.mode == "RGB":  # the same pixels as through an array, without two copies
+            rgb = np.asarray(img.resize((nw, nh), Image.Resampling.BOX))
+        else:  # other modes are converted (alpha composited, 16-bit rescaled) first
+            rgb = np.asarray(Image.fromarray(_to_rgb(img)).resize((nw, nh), Image.Resampling.BOX))
+        logger.info("downscaled %s from %dx%d to %dx%d", path, w, h, nw, nh)
+    else:
+        rgb = _to_rgb(img)
     rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
     return LoadedImage(
         rgb=rgb, original_size=(w, h), scale=scale, source_format=fmt, path=str(path)
