@@ -145,6 +145,7 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
         "seconds": secs,
         "notes": notes,
         "score": None if seg is None else seg.meta.get("score"),
+        "evidence": None if seg is None else seg.meta.get("evidence"),
         "margin": None if seg is None else seg.meta.get("margin"),
     }
     row["best_hyp"] = best_hypothesis_iou(rgb, hands, segmenter, ref["object"])
