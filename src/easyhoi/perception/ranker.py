@@ -19,7 +19,7 @@ from easyhoi.perception import held_object as ho
 from easyhoi.perception.proposals import Proposals
 
 #: Hypotheses (best by the cheap cues) that get every cue before the final ranking.
-RANK_TOP = 48
+RANK_TOP = 160
 #: Features of the learned ranking (:func:`ranker_features`): the hand-set score of
 #: :func:`held_object.score`, then the cues (the grasp cues times the same object-likeness gate
 #: as in that score, lengths and areas capped as there, the area also as its logarithm).
@@ -43,24 +43,24 @@ FEATURES = (
 #: gives, the hand-set score's weight fixed at 1); zero where the fit found no use for a cue.
 RANKER_WEIGHTS = {
     "score": 1.0,
-    "fingers": 0.957,
+    "fingers": 0.867,
     "thumb": 0.0,
-    "grasp": 2.046,
-    "contact": 0.0,
+    "grasp": 1.118,
+    "contact": 0.192,
     "skin": 0.0,
-    "border": -0.324,
-    "size": -0.216,
-    "far": -5.611,
-    "contrast": 0.0,
-    "solidity": 0.0,
-    "sides": -0.69,
-    "back": 0.0,
+    "border": 0.0,
+    "size": 0.0,
+    "far": 0.0,
+    "contrast": 0.748,
+    "solidity": 1.626,
+    "sides": 0.0,
+    "back": -0.011,
     "cross": 0.0,
     "pinch": 0.0,
-    "wrap": 0.0,
-    "spread": 0.0,
+    "wrap": -1.327,
+    "spread": -0.269,
     "amodal": 0.0,
-    "log_area": 0.638,
+    "log_area": 0.379,
 }
 
 
