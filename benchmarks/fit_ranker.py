@@ -44,12 +44,12 @@ CACHE = RESULTS / "ranker_cache.pkl"
 SIGNS = {
     "fingers": 1, "thumb": 1, "grasp": 1, "contact": 1, "skin": -1, "border": -1, "size": -1,
     "far": -1, "contrast": 1, "solidity": 1, "sides": -1, "back": -1, "cross": 1, "pinch": 1,
-    "wrap": -1, "spread": -1, "amodal": 1, "log_area": 0,
+    "wrap": -1, "spread": -1, "flanks": -1, "amodal": 1, "log_area": 0,
 }  # fmt: skip
 #: Features whose weights are fitted (the hand-set score keeps weight 1).
 FREE = (
     "fingers", "thumb", "grasp", "contact", "skin", "border", "size", "far", "contrast", "solidity",
-    "sides", "back", "pinch", "wrap", "spread", "amodal", "log_area",
+    "sides", "back", "pinch", "wrap", "spread", "flanks", "amodal", "log_area",
 )  # fmt: skip
 
 

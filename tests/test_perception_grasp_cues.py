@@ -67,6 +67,20 @@ def test_cross_is_zero_for_regions_that_stop_at_the_fingers():
     assert cues_of(strip, [{1}])[0, col("cross")] == 0.0
 
 
+def test_flanks_find_the_surface_on_both_sides_of_the_palm():
+    h = hand()
+    yy, xx = np.mgrid[0:S, 0:S]
+    disk = (xx - 88) ** 2 + (yy - 128) ** 2 < 22**2  # in the grasp, beyond the thumb side
+    labels = np.where(h, -1, np.where(disk, 1, 0))
+    c = cues_of(labels, [{0}, {1}])[:, col("flanks")]
+    # the background is on both sides of the palm along its whole length; the grasped disk
+    # lies on one side at most
+    assert c[0] == pytest.approx(1.0) and c[1] == 0.0
+    # a surface on the thumb side only (left of the wrist-middle MCP axis, x = 117-120)
+    half = np.where(h, -1, (xx < 118).astype(int))
+    assert cues_of(half, [{1}])[0, col("flanks")] == 0.0
+
+
 def test_sides_counts_the_crop_edges_a_region_touches():
     labels = np.zeros((S, S), int)
     labels[:60, :60] = 1  # top-left corner: 2 sides

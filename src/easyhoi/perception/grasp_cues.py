@@ -19,6 +19,8 @@ cue                measure
                    crop) the region borders
 ``spread``         share of the ``SECTORS`` angular sectors around the palm centre in which
                    the region borders the hand
+``flanks``         share of the sampled cross-sections of the palm (across the wrist to
+                   middle-MCP axis) whose two sides both lie in the region
 ``amodal``         solidity of the region with the hand pixels inside its convex hull counted
                    as the region (what the fingers hide of it)
 =================  ========================================================================
@@ -33,7 +35,7 @@ from easyhoi.perception.proposals import segment_sums
 from easyhoi.perception.skin import hand_axis, palm_length
 
 #: Cue names, in the order :func:`region_cues` returns them (``amodal`` is filled in later).
-EXTRA = ("sides", "back", "cross", "pinch", "wrap", "spread", "amodal")
+EXTRA = ("sides", "back", "cross", "pinch", "wrap", "spread", "flanks", "amodal")
 #: Angular sectors around the palm centre in which ``spread`` looks for contact.
 SECTORS = 12
 #: Grip lines (keypoint pairs): the thumb tip and IP joint to the index and middle fingers.
@@ -48,18 +50,24 @@ CROSS_BONES = tuple(
 CROSS_REACH = 0.45
 
 
-def cross_sections(labels: np.ndarray, kp: np.ndarray, step: float = 2.0) -> np.ndarray:
+def cross_sections(
+    labels: np.ndarray,
+    kp: np.ndarray,
+    step: float = 2.0,
+    bones: tuple[tuple[int, int], ...] = CROSS_BONES,
+    reach_l: float = CROSS_REACH,
+) -> np.ndarray:
     """(m, 2) base labels on the two sides of each sampled finger cross-section.
 
-    Along every bone of :data:`CROSS_BONES`, every ``step`` px, a line perpendicular to the bone
-    is followed both ways from the bone to the first pixel that is not excluded (not a hand);
-    the labels there are the two sides. Sections leaving the crop, or not leaving the hand
-    within ``CROSS_REACH`` L, are dropped."""
+    Along every bone of ``bones`` (:data:`CROSS_BONES`), every ``step`` px, a line perpendicular
+    to the bone is followed both ways from the bone to the first pixel that is not excluded (not
+    a hand); the labels there are the two sides. Sections leaving the crop, or not leaving the
+    hand within ``reach_l`` L, are dropped."""
     h, w = labels.shape
     L = palm_length(kp)
-    reach = np.arange(1.0, max(2.0, CROSS_REACH * L) + 1.0)
+    reach = np.arange(1.0, max(2.0, reach_l * L) + 1.0)
     out = []
-    for a, b in CROSS_BONES:
+    for a, b in bones:
         d = kp[b] - kp[a]
         n = float(np.hypot(*d))
         if n < 1.0:
@@ -119,6 +127,7 @@ def segment_table(labels: np.ndarray, hand: np.ndarray, kp: np.ndarray, n: int) 
         "pinch": segment_sums(labels, lines, n),
         "pinch_total": float(lines.sum()),
         "cross": cross_sections(labels, kp),
+        "flanks": cross_sections(labels, kp, bones=((0, 9),), reach_l=1.0),
         "wrap": segment_sums(labels, band, n),
         "wrap_total": float(max(1, band.sum())),
         "spread": spread,
@@ -143,6 +152,11 @@ def region_cues(member, table: dict) -> np.ndarray:
         out[:, 2] = np.asarray(both.sum(1)).ravel() / len(pairs)
     if table["pinch_total"] > 0:
         out[:, 3] = (member @ table["pinch"]) / table["pinch_total"]
+    pairs = table["flanks"]
+    if len(pairs):
+        m = member.tocsc()
+        both = m[:, pairs[:, 0]].multiply(m[:, pairs[:, 1]])
+        out[:, 6] = np.asarray(both.sum(1)).ravel() / len(pairs)
     out[:, 4] = (member @ table["wrap"]) / table["wrap_total"]
     out[:, 5] = ((member @ table["spread"].T) >= 2).sum(1) / SECTORS
     return out

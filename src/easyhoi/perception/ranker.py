@@ -43,24 +43,25 @@ FEATURES = (
 #: gives, the hand-set score's weight fixed at 1); zero where the fit found no use for a cue.
 RANKER_WEIGHTS = {
     "score": 1.0,
-    "fingers": 0.867,
+    "fingers": 0.843,
     "thumb": 0.0,
-    "grasp": 1.118,
-    "contact": 0.192,
+    "grasp": 1.053,
+    "contact": 0.124,
     "skin": 0.0,
     "border": 0.0,
     "size": 0.0,
     "far": 0.0,
-    "contrast": 0.748,
-    "solidity": 1.626,
+    "contrast": 0.785,
+    "solidity": 1.605,
     "sides": 0.0,
-    "back": -0.011,
+    "back": 0.0,
     "cross": 0.0,
     "pinch": 0.0,
-    "wrap": -1.327,
-    "spread": -0.269,
+    "wrap": -0.667,
+    "spread": 0.0,
+    "flanks": -2.436,
     "amodal": 0.0,
-    "log_area": 0.379,
+    "log_area": 0.374,
 }
 
 
@@ -90,6 +91,7 @@ def ranker_features(cues: np.ndarray) -> np.ndarray:
         "pinch": c["pinch"],
         "wrap": c["wrap"],
         "spread": c["spread"],
+        "flanks": c["flanks"],
         "amodal": c["amodal"],
         "log_area": np.log(area),
     }
