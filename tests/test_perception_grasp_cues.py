@@ -154,3 +154,38 @@ def test_every_hypothesis_gets_the_extra_cues_in_describe():
     cues = ho.describe(props, scene)
     extra = cues[:, len(ho.CUES) - len(gc.EXTRA) : -1]  # amodal (last) needs the mask drawn
     assert np.allclose(extra, cues_of(labels, [{0}, {1}, {0, 1}])[:, :-1])
+
+
+def test_ranker_score_is_the_hand_set_score_plus_the_weighted_features():
+    from easyhoi.perception import ranker
+
+    rng = np.random.default_rng(0)
+    cues = rng.uniform(0.0, 1.0, (6, len(ho.CUES)))
+    cues[:, ho.CUES.index("area")] = [0.05, 0.2, 1.0, 2.0, 4.0, 9.0]
+    only_score = dict.fromkeys(ranker.FEATURES, 0.0) | {"score": 1.0}
+    assert np.allclose(ranker.ranker_score(cues, only_score), ho.score(cues))
+    only_area = dict.fromkeys(ranker.FEATURES, 0.0) | {"log_area": 1.0}
+    assert np.allclose(ranker.ranker_score(cues, only_area), np.log(cues[:, ho.CUES.index("area")]))
+    # the grasp cues count through the same object-likeness gate as in the hand-set score
+    only_grasp = dict.fromkeys(ranker.FEATURES, 0.0) | {"grasp": 1.0}
+    c = {k: cues[:, j] for j, k in enumerate(ho.CUES)}
+    gate = (0.25 + 0.75 * c["contrast"]) * (0.25 + 0.75 * c["solidity"])
+    assert np.allclose(ranker.ranker_score(cues, only_grasp), gate * c["grasp"])
+    w = np.array([ranker.RANKER_WEIGHTS[k] for k in ranker.FEATURES])
+    assert np.allclose(ranker.ranker_score(cues), ranker.ranker_features(cues) @ w)
+
+
+def test_stored_ranker_weights_keep_the_signs_of_their_reasons():
+    import importlib.util
+    from pathlib import Path
+
+    from easyhoi.perception import ranker
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "fit_ranker.py"
+    spec = importlib.util.spec_from_file_location("fit_ranker", path)
+    fit = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fit)
+    assert ranker.RANKER_WEIGHTS["score"] == 1.0
+    for k, v in ranker.RANKER_WEIGHTS.items():
+        if k != "score":
+            assert v * fit.SIGNS[k] >= 0.0, k
