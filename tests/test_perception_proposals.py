@@ -203,7 +203,7 @@ def test_the_automatic_path_finds_the_grasped_object_with_pooled_proposals():
 def test_dev_photos_best_hypothesis_and_automatic_choice():
     """On the 39 development photos (shared data; skipped without it): the best automatic
     hypothesis reaches IoU >= 0.5 with the hand-drawn held object on at least 60 % of the photos
-    with an object (66 % measured), the automatic choice on at least 22 % (26 % measured), and
+    with an object (68 % measured), the automatic choice on at least 28 % (32 % measured), and
     the photo where nothing is held gets a low object confidence."""
     import importlib.util
     from pathlib import Path
@@ -237,4 +237,4 @@ def test_dev_photos_best_hypothesis_and_automatic_choice():
         best.append(bench.best_hypothesis_iou(rgb, hands, seg, ref["object"]))
     assert len(best) == 38 and nothing_held == [True]
     assert np.mean(np.array(best) >= 0.5) >= 0.6
-    assert np.mean(np.array(chosen) >= 0.5) >= 0.22
+    assert np.mean(np.array(chosen) >= 0.5) >= 0.28

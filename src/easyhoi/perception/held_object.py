@@ -22,8 +22,10 @@ cue                measure
 ``solidity``       region area / area of its convex hull
 =================  ========================================================================
 
-:func:`score` combines them linearly (weights :data:`WEIGHTS`), a log-odds style sum; the best
-hypotheses are refined by :func:`refine` (GrabCut seeded by the hypothesis).
+:func:`score` combines them linearly (weights :data:`WEIGHTS`), a log-odds style sum: the
+evidence that a region is a held object at all. :mod:`easyhoi.perception.ranker` ranks the
+hypotheses (that score and the further cues of :mod:`easyhoi.perception.grasp_cues`, with weights
+fitted on photos); the best is refined by :func:`refine` (GrabCut seeded by the hypothesis).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from easyhoi.perception import grasp_cues as gc
 from easyhoi.perception.proposals import Proposals, membership, segment_sums
 from easyhoi.perception.skin import SKIN_D2, grabcut, hand_axis, palm_length
 
@@ -73,6 +76,7 @@ CUES = (
     "far",
     "contrast",
     "solidity",
+    *gc.EXTRA,
 )
 
 
@@ -105,11 +109,20 @@ class Scene:
 
 @dataclass(frozen=True)
 class Hypotheses:
-    """Cues and scores of every hypothesis (rows follow ``proposals.regions``)."""
+    """Cues and scores of every hypothesis (rows follow ``proposals.regions``).
+
+    ``scores`` rank the hypotheses; ``evidence`` (the hand-set :func:`score`, on the scale of
+    ``min_score`` and the confidence's calibration) says how much the region looks like a held
+    object at all; when absent it is ``scores``."""
 
     proposals: Proposals
     cues: np.ndarray  # (n, len(CUES))
     scores: np.ndarray  # (n,)
+    evidence: np.ndarray | None = None  # (n,)
+
+    def strength(self, i: int) -> float:
+        """Held-object evidence of hypothesis ``i``."""
+        return float((self.scores if self.evidence is None else self.evidence)[i])
 
     def cue(self, i: int) -> dict:
         return {k: round(float(v), 3) for k, v in zip(CUES, self.cues[i], strict=True)}
@@ -174,6 +187,7 @@ def describe(props: Proposals, scene: Scene) -> np.ndarray:
     """(n_regions, len(CUES)) cues of every hypothesis, ``contrast`` and ``solidity`` left at 0
     (they need the mask drawn)."""
     st = _base_stats(props, scene)
+    n = props.n_base
     L = scene.palm
     grasp_total = max(1.0, float(grasp_zone(props.labels.shape, scene.kp, scene.hand).sum()))
     out = np.zeros((len(props.regions), len(CUES)))
@@ -194,6 +208,8 @@ def describe(props: Proposals, scene: Scene) -> np.ndarray:
     out[:, 6] = sums[:, 5] / L
     out[:, 7] = size / scene.hand_area
     out[:, 8] = sums[:, 6] / size
+    table = gc.segment_table(props.labels, scene.hand, scene.kp, n)
+    out[:, len(CUES) - len(gc.EXTRA) :] = gc.region_cues(member, table)
     return out
 
 
@@ -269,28 +285,19 @@ def solidity(mask: np.ndarray) -> float:
     )
 
 
-def rank(props: Proposals, scene: Scene, top: int = 24) -> Hypotheses:
-    """Cues and scores of all hypotheses; the ``top`` best by the cheap cues also get
-    ``contrast`` (the only cue that needs the mask drawn)."""
-    cues = describe(props, scene)
-    s = score(cues, gated=False)
-    touching = cues[:, CUES.index("contact")] > 0
-    s = np.where(touching, s, -np.inf)  # a held object touches the hand on its grip side
-    order = np.argsort(-s, kind="stable")[:top]
+def drawn_cues(props: Proposals, scene: Scene, cues: np.ndarray, order) -> None:
+    """Fill in, for the hypotheses ``order``, the cues that need the mask drawn."""
     exclude = cv2.dilate(
         (scene.hand | scene.other_hands).astype(np.uint8), np.ones((5, 5), np.uint8)
     ).astype(bool)
     width = max(3, int(0.2 * scene.palm))
     codes = colour_codes(scene.lab)
-    j, k = CUES.index("contrast"), CUES.index("solidity")
+    j, k, a = CUES.index("contrast"), CUES.index("solidity"), CUES.index("amodal")
     for i in order:
-        if np.isfinite(s[i]):
-            m = props.mask(props.regions[i])
-            cues[i, j] = outline_contrast(m, exclude, codes, width)
-            cues[i, k] = solidity(m)
-    s2 = score(cues)
-    s2 = np.where(np.isfinite(s) & np.isin(np.arange(len(s)), order), s2, -np.inf)
-    return Hypotheses(props, cues, s2)
+        m = props.mask(props.regions[i])
+        cues[i, j] = outline_contrast(m, exclude, codes, width)
+        cues[i, k] = solidity(m)
+        cues[i, a] = gc.amodal_solidity(m, scene.hand)
 
 
 def overlap(props: Proposals, a: frozenset, b: frozenset) -> float:
@@ -301,10 +308,15 @@ def overlap(props: Proposals, a: frozenset, b: frozenset) -> float:
 
 
 def runner_up(hyp: Hypotheses, best: int, max_iou: float = 0.5) -> int | None:
-    """Index of the best-scoring hypothesis that is a different region (IoU < ``max_iou``)."""
+    """Index of the hypothesis with the most held-object evidence (:meth:`Hypotheses.strength`)
+    that is a different region from ``best`` (IoU < ``max_iou``) and not smaller than the
+    smallest held object (``AREA_RANGE[0]`` hands: a speck or a pocket of background between
+    the fingers and the object is no alternative object)."""
     regs = hyp.proposals.regions
-    for i in np.argsort(-hyp.scores, kind="stable"):
-        if i == best or not np.isfinite(hyp.scores[i]):
+    ev = hyp.scores if hyp.evidence is None else hyp.evidence
+    small = hyp.cues[:, CUES.index("area")] < AREA_RANGE[0]
+    for i in np.argsort(-ev, kind="stable"):
+        if i == best or not np.isfinite(ev[i]) or small[i]:
             continue
         if overlap(hyp.proposals, regs[best], regs[i]) < max_iou:
             return int(i)
@@ -363,6 +375,7 @@ def mask_cues(mask: np.ndarray, scene: Scene) -> np.ndarray:
     width = max(3, int(0.2 * scene.palm))
     cues[CUES.index("contrast")] = outline_contrast(mask, exclude, colour_codes(scene.lab), width)
     cues[CUES.index("solidity")] = solidity(mask)
+    cues[CUES.index("amodal")] = gc.amodal_solidity(mask, scene.hand)
     return cues
 
 

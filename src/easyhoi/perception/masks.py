@@ -27,6 +27,7 @@ import numpy as np
 from easyhoi.errors import InvalidInputError
 from easyhoi.io.image import check_image
 from easyhoi.perception import held_object as ho
+from easyhoi.perception import ranker
 from easyhoi.perception.base import HandDetection, Segmentation, register
 from easyhoi.perception.prompts import Prompts
 from easyhoi.perception.proposals import Proposals, propose, propose_scales
@@ -157,7 +158,7 @@ class ClassicalHOISegmenter:
         refine_top: int = 1,
         seed: int = 0,
         auto_scales: tuple[float, ...] = (100.0, 300.0, 600.0),
-        rank_top: int = 24,
+        rank_top: int = ranker.RANK_TOP,
     ):
         self.auto_scales = tuple(float(v) for v in auto_scales)
         self.rank_top = int(rank_top)
@@ -249,11 +250,13 @@ class ClassicalHOISegmenter:
             has_object = bool(obj.any())
         else:
             props = self._auto_proposals(w)
-            hyp = ho.rank(props, scene, self.rank_top) if props.regions else None
+            hyp = ranker.rank(props, scene, self.rank_top) if props.regions else None
             best, obj = None, np.zeros(shape, bool)
             if hyp is not None and np.isfinite(hyp.scores).any():
                 best, obj, hyp = self._refine_best(img, props, scene, hyp, excl)
-            has_object = best is not None and hyp.scores[best] >= self.min_score
+            # the hand holds something when some ranked region has the evidence of a held
+            # object, whichever the ranking chose
+            has_object = best is not None and float(np.max(hyp.evidence)) >= self.min_score
             if not has_object:
                 obj = np.zeros(shape, bool)
         if prompted and prompts.object_box is None:
@@ -298,9 +301,10 @@ class ClassicalHOISegmenter:
                 "n_hypotheses": None if props is None else len(props.regions),
                 "prompted": prompted,
                 "score": None if best is None else round(float(hyp.scores[best]), 3),
+                "evidence": None if best is None else round(hyp.strength(best), 3),
                 "margin": None
                 if runner is None or best is None
-                else round(float(hyp.scores[best] - hyp.scores[runner]), 3),
+                else round(hyp.strength(best) - hyp.strength(runner), 3),
                 "hypotheses": top,
             },
         )
@@ -381,21 +385,25 @@ class ClassicalHOISegmenter:
         return w.crop, self._auto_proposals(w)
 
     def _refine_best(self, img, props, scene, hyp, excl):
-        """Refine the ``refine_top`` best distinct hypotheses by GrabCut and score the refined
-        masks with the same cues: GrabCut's colour mixtures gather the parts of a textured
-        object that the proposals split. Returns (index, refined mask, hypotheses with the
-        refined scores)."""
+        """Refine the ``refine_top`` best distinct hypotheses by GrabCut (its colour mixtures
+        gather the parts of a textured object that the proposals split) and keep the best
+        ranked one that GrabCut leaves non-empty. Returns (index, refined mask, hypotheses with
+        the refined masks' cues and held-object evidence)."""
         cues, scores = hyp.cues.copy(), hyp.scores.copy()
+        evidence = hyp.scores.copy() if hyp.evidence is None else hyp.evidence.copy()
         masks = {}
         for i in ho.distinct_best(hyp, self.refine_top):
             raw = props.mask(props.regions[i])
             m = fill_holes(ho.refine(img, raw, excl, self.iterations, self.seed)) & ~excl
             if not m.any():
                 continue
+            # the refined mask's cues and held-object evidence; its ranking score stays the
+            # hypothesis's (the ranking and its margin judge the proposals, GrabCut only
+            # adjusts the chosen one's outline)
             cues[i] = ho.mask_cues(m, scene)
-            scores[i] = ho.score(cues[i][None])[0]
+            evidence[i] = ho.score(cues[i][None])[0]
             masks[i] = m
-        out = ho.Hypotheses(props, cues, scores)
+        out = ho.Hypotheses(props, cues, scores, evidence)
         if not masks:
             return None, np.zeros(img.shape[:2], bool), out
         best = max(masks, key=lambda i: scores[i])

@@ -3,12 +3,14 @@
 The score is a logistic function of the evidence; the reasons name every weak cue in words, so
 a user learns what was doubtful and that an object point (``--object-point X,Y``) fixes it.
 
-Object (automatic): the held-object score of the chosen hypothesis and its margin over the best
-*different* hypothesis (IoU < 0.5). A high score means the region is where a grasped object lies
-(pressed by several fingers and the thumb, filling the grasp, not skin, not background running out
-of the picture, with a closed outline); a small margin means another region is almost as good a
-held object, and the choice between them is a guess. Prompted: the user said where the object is,
-so only a region that grew far beyond the prompt or looks like skin lowers the score.
+Object (automatic): the held-object evidence of the chosen hypothesis (the hand-set score of
+:func:`easyhoi.perception.held_object.score`, not the ranking's score) and its margin over the
+*different* hypothesis (IoU < 0.5) with the most evidence. A high score means the region is where
+a grasped object lies (pressed by several fingers and the thumb, filling the grasp, not skin, not
+background running out of the picture, with a closed outline); a small margin means another
+region is almost as good a held object, and the choice between them is a guess. Prompted: the
+user said where the object is, so only a region that grew far beyond the prompt or looks like
+skin lowers the score.
 
 Hand: the detector's score, and how much of the skeleton's core the hand mask covers (a mask
 that misses the fingers the detector placed means the hand colour model failed).
@@ -67,11 +69,11 @@ def object_confidence(
         return MaskConfidence(0.0, ("no region scored as a held object; point at it",))
     cues = dict(zip(CUES, hyp.cues[best], strict=True))
     reasons = weak_cues(cues)
-    s = float(hyp.scores[best])
+    s = hyp.strength(best)
     if prompted:
         z = 2.5 - 3.0 * cues["skin"] - 2.0 * max(0.0, np.log(max(cues["area"], 1e-6) / 6.0))
         return MaskConfidence(_sigmoid(z), tuple(r for r in reasons if "skin" in r or "size" in r))
-    margin = s - float(hyp.scores[runner]) if runner is not None else 3.0
+    margin = s - hyp.strength(runner) if runner is not None else 3.0
     c = CALIBRATION
     z = c["A"] * (s - c["S0"]) + c["B"] * (min(margin, 3.0) - c["M0"])
     if margin < c["M0"]:
