@@ -134,3 +134,45 @@ def test_the_hands_rim_is_left_out_unless_the_click_is_skin_coloured():
     lab2 = cv2.cvtColor(img2, cv2.COLOR_RGB2LAB).astype(np.float64)
     scene2 = ho.Scene(lab2, hand, kp, skin_model(lab2, kp).d2(lab2), hand & False)
     assert not hand_rim(scene2, np.array([195.0, 60.0])).any()
+
+
+def test_object_pixels_under_a_too_wide_hand_mask_are_taken_back():
+    from easyhoi.perception import held_object as ho
+    from easyhoi.perception.click import take_back_from_hand
+    from easyhoi.perception.skin import skin_model
+
+    kp = det().keypoints2d
+    img = canvas()
+    img, drawn = finish(img)
+    # an orange object pressed against the little finger's side; the hand mask runs up to
+    # 12 px into it
+    obj = (XX >= 140) & (XX < 210) & (YY >= 110) & (YY < 170) & ~drawn
+    img[obj] = (235, 120, 40)
+    dist = cv2.distanceTransform((~drawn).astype(np.uint8), cv2.DIST_L2, 5)
+    hand = drawn | (obj & (dist <= 12))
+    assert (hand & obj).sum() > 500  # the mask took a band of the object
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene = ho.Scene(lab, hand, kp, skin_model(lab, kp).d2(lab), hand & False)
+    seen = obj & ~hand  # what a candidate outside the hand mask gives
+    out = take_back_from_hand(seen, scene)
+    assert np.array_equal(out & ~hand, seen)  # nothing outside the hand mask changes
+    assert (out & hand & obj).sum() >= 0.95 * (hand & obj).sum()  # the band comes back
+    assert not (out & drawn & ~obj).any()  # no skin pixel of the drawn hand
+    assert iou(out, obj) > 0.97 > iou(seen, obj) + 0.05
+
+
+def test_nothing_is_taken_back_from_a_hand_of_the_objects_colour_alone():
+    from easyhoi.perception import held_object as ho
+    from easyhoi.perception.click import take_back_from_hand
+    from easyhoi.perception.skin import skin_model
+
+    kp = det().keypoints2d
+    img = canvas()
+    obj = (np.abs(XX - 195) < 30) & (np.abs(YY - 60) < 40)
+    img[obj] = (40, 60, 170)
+    img, hand = finish(img)
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene = ho.Scene(lab, hand, kp, skin_model(lab, kp).d2(lab), hand & False)
+    seen = obj & ~hand
+    # the hand mask holds only skin here: the blue object's model claims none of it
+    assert np.array_equal(take_back_from_hand(seen, scene), seen)

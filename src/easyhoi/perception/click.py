@@ -48,6 +48,11 @@ FINE_SCALE = 75.0
 RIM = 0.3
 #: Smallest piece joined across the hand, as a share of the clicked piece.
 JOIN_MIN = 0.05
+#: Variance added to every Lab channel of the colour Gaussians of :func:`take_back_from_hand`
+#: (8-bit Lab units squared): keeps a flat-coloured sample from giving a degenerate model.
+COLOUR_FLOOR = 4.0
+#: Fewest pixels a colour sample of :func:`take_back_from_hand` needs.
+MIN_SAMPLES = 30
 #: Score weights of :func:`click_score`.
 CLICK_WEIGHTS = {
     "contrast": 3.0,
@@ -232,6 +237,62 @@ def join_across_hand(fg: np.ndarray, m: np.ndarray, hand: np.ndarray, L: float):
     return fill_holes(m | np.isin(cc, touch))
 
 
+def _gaussian(px: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Mean, inverse covariance and log-determinant of a full-covariance Gaussian fitted to
+    (n, 3) Lab samples (covariance widened by :data:`COLOUR_FLOOR` per channel)."""
+    mu = px.mean(0)
+    cov = np.cov(px.T) + np.eye(3) * COLOUR_FLOOR
+    return mu, np.linalg.inv(cov), float(np.linalg.slogdet(cov)[1])
+
+
+def _nll(x: np.ndarray, g: tuple[np.ndarray, np.ndarray, float]) -> np.ndarray:
+    """Twice the negative log-likelihood (up to a constant) of (n, 3) samples under ``g``."""
+    mu, inv, logdet = g
+    d = x - mu
+    return np.einsum("ni,ij,nj->n", d, inv, d) + logdet
+
+
+def take_back_from_hand(m: np.ndarray, scene: ho.Scene) -> np.ndarray:
+    """``m`` plus the pixels of the hand mask that look like the object rather than the hand
+    and join it.
+
+    The hand mask is grown from the skeleton and is wider than the fingers: where a held object
+    touches them, the mask takes in a band of the object (the part of a cup below the fingers,
+    a pen under the thumb). Inside the hand mask, a pixel is given to the object when its colour
+    is more likely under a Gaussian of the object's visible pixels (outside the hand) than under
+    one of the hand's skin-coloured bone cores (the pixels surely the hand). Full covariances,
+    not a skin threshold: an orange cup and a beige hand both pass a loose skin test, but their
+    colours still separate when the two models are compared. The pixels taken back are opened
+    (3 x 3) and kept only where they connect to ``m``; the other hands are never taken.
+
+    Args:
+        m (np.ndarray): (h, w) bool object mask.
+        scene (ho.Scene): The hand, its keypoints and colour model in the crop.
+
+    Returns:
+        np.ndarray: (h, w) bool mask (``m`` itself when either colour sample is too small).
+    """
+    h, w = m.shape
+    L = scene.palm
+    core = (
+        draw_skeleton((h, w), scene.kp, 0.12 * L, palm=False)
+        & scene.hand
+        & (scene.skin_d2 < SKIN_D2)
+    )
+    visible = m & ~scene.hand
+    zone = scene.hand & ~scene.other_hands & ~m
+    if core.sum() < MIN_SAMPLES or visible.sum() < MIN_SAMPLES or not zone.any():
+        return m
+    g_obj, g_hand = _gaussian(scene.lab[visible]), _gaussian(scene.lab[core])
+    ys, xs = np.nonzero(zone)
+    px = scene.lab[ys, xs]
+    ok = _nll(px, g_obj) < _nll(px, g_hand)
+    add = np.zeros((h, w), np.uint8)
+    add[ys[ok], xs[ok]] = 1
+    add = cv2.morphologyEx(add, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+    return _component_at(m | add, m)
+
+
 def click_proposals(
     img: np.ndarray, scene: ho.Scene, p: np.ndarray, props: Proposals
 ) -> list[np.ndarray]:
@@ -323,22 +384,37 @@ def click_object(
     h, w = img.shape[:2]
     pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
     forbidden = scene.hand | scene.other_hands
+    p = pts[0]
+    scored = scored_candidates(img, scene, p, regions, iterations, seed)
+    if not scored:
+        return _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden, []
+    best = max(range(len(scored)), key=lambda i: scored[i][0])
+    obj = take_back_from_hand(scored[best][2], scene)
+    for q in pts[1:]:  # further clicks: their own best candidate joins the object
+        extra = click_object(img, scene, q[None], [], iterations, seed)[0]
+        obj = obj | extra
+    return obj, [(s, c) for s, c, _ in scored]
+
+
+def scored_candidates(
+    img: np.ndarray,
+    scene: ho.Scene,
+    p: np.ndarray,
+    regions: list[np.ndarray],
+    iterations: int,
+    seed: int,
+) -> list[tuple[float, dict[str, float], np.ndarray]]:
+    """(score, cues, mask) of every candidate for the click ``p``: the GrabCut candidates
+    grown from it and the (non-empty) ``regions`` containing it."""
+    forbidden = scene.hand | scene.other_hands
     exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     codes = ho.colour_codes(scene.lab)
     gray = cv2.GaussianBlur(scene.lab[..., 0].astype(np.float32), (3, 3), 0)
     grad = np.hypot(cv2.Sobel(gray, cv2.CV_32F, 1, 0), cv2.Sobel(gray, cv2.CV_32F, 0, 1))
-    p = pts[0]
     cands = click_candidates(img, scene, p, forbidden, iterations, seed)
     cands += [(m, None) for m in regions if m.any()]
     scored = []
     for m, window in cands:
         c = candidate_cues(m, p, window, scene, exclude, codes, grad)
         scored.append((click_score(c), c, m))
-    if not scored:
-        return _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden, []
-    best = max(range(len(scored)), key=lambda i: scored[i][0])
-    obj = scored[best][2]
-    for q in pts[1:]:  # further clicks: their own best candidate joins the object
-        extra = click_object(img, scene, q[None], [], iterations, seed)[0]
-        obj = obj | extra
-    return obj, [(s, c) for s, c, _ in scored]
+    return scored
