@@ -176,3 +176,37 @@ def test_nothing_is_taken_back_from_a_hand_of_the_objects_colour_alone():
     seen = obj & ~hand
     # the hand mask holds only skin here: the blue object's model claims none of it
     assert np.array_equal(take_back_from_hand(seen, scene), seen)
+
+
+def test_inner_edges_mark_only_the_crop_sides_inside_the_photo():
+    from easyhoi.perception.click import inner_edges
+
+    assert not inner_edges((6, 8), None).any()
+    e = inner_edges((6, 8), (True, False, False, True))  # photo goes on left and below
+    assert e[:, 0].all() and e[-1, :].all()
+    assert int(e.sum()) == 6 + 8 - 1
+    assert not e[0, 1:].any() and not e[:-1, -1].any()
+
+
+def test_the_frame_cue_counts_the_length_along_inner_crop_edges():
+    from easyhoi.perception import held_object as ho
+    from easyhoi.perception.click import candidate_cues, click_score, inner_edges
+    from easyhoi.perception.skin import palm_length, skin_model
+
+    kp = det().keypoints2d
+    img, hand = finish(canvas())
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene = ho.Scene(lab, hand, kp, skin_model(lab, kp).d2(lab), hand & False)
+    L = palm_length(kp)
+    strip = (XX >= 200) & (YY >= 20) & (YY < 100)  # 40 x 80 px, on the right side
+    codes = ho.colour_codes(lab)
+    grad = np.zeros((S, S), np.float32)
+    p = np.array([220.0, 60.0])
+    photo = candidate_cues(strip, p, None, scene, hand, codes, grad, inner_edges((S, S), None))
+    inner = candidate_cues(
+        strip, p, None, scene, hand, codes, grad, inner_edges((S, S), (False, False, True, False))
+    )
+    assert photo["frame"] == 0.0  # the photo's own edge: the object may leave the photo
+    assert abs(inner["frame"] - 80.0 / L) < 1e-9  # 80 px along the crop's inner right side
+    # everything else equal, running out of the crop through the photo costs score
+    assert click_score(inner) < click_score(photo)

@@ -55,15 +55,19 @@ COLOUR_FLOOR = 4.0
 MIN_SAMPLES = 30
 #: Score weights of :func:`click_score`.
 CLICK_WEIGHTS = {
-    "contrast": 3.0,
-    "edge": 2.0,
-    "solidity": 0.5,
-    "depth": 3.0,
-    "window": -1.5,
-    "skin": -0.5,
-    "size": -1.0,
-    "log_area": 0.4,
+    "contrast": 3.8,
+    "edge": 1.4,
+    "solidity": 0.2,
+    "depth": 3.4,
+    "window": -1.6,
+    "skin": -0.55,
+    "size": -0.45,
+    "log_area": 0.35,
+    "frame": -0.4,
 }
+#: Length along the crop's inner edges (those inside the photo) beyond which the ``frame`` cue
+#: stops growing, in palm lengths.
+FRAME_CAP = 4.0
 #: Object area range, x hand area, outside which the size penalty grows with the log-ratio.
 CLICK_AREA = (0.02, 4.0)
 
@@ -106,7 +110,24 @@ def click_score(c: dict[str, float]) -> float:
         + w["skin"] * c["skin"]
         + w["size"] * abs(np.log(a / np.clip(a, lo, hi)))
         + w["log_area"] * np.log(a)
+        + w["frame"] * min(c.get("frame", 0.0), FRAME_CAP)
     )
+
+
+def inner_edges(shape: tuple[int, int], inside: tuple[bool, bool, bool, bool] | None):
+    """(h, w) bool one-pixel border of the working crop on the sides that lie inside the photo.
+
+    ``inside`` says, for the left, top, right and bottom side of the crop, whether the photo
+    goes on beyond it (None: the crop is the whole photo)."""
+    out = np.zeros(shape, bool)
+    if inside is None:
+        return out
+    left, top, right, bottom = inside
+    out[:, 0] |= bool(left)
+    out[0, :] |= bool(top)
+    out[:, -1] |= bool(right)
+    out[-1, :] |= bool(bottom)
+    return out
 
 
 def candidate_cues(
@@ -117,6 +138,7 @@ def candidate_cues(
     exclude: np.ndarray,
     codes: np.ndarray,
     grad: np.ndarray,
+    inner: np.ndarray | None = None,
 ) -> dict[str, float]:
     """Cues of one candidate mask for a click.
 
@@ -128,9 +150,12 @@ def candidate_cues(
         exclude (np.ndarray): (h, w) bool pixels left out of the outline cues (the hands).
         codes (np.ndarray): (h, w) int colour bins (:func:`ho.colour_codes`).
         grad (np.ndarray): (h, w) float gradient magnitude of the lightness.
+        inner (np.ndarray | None): (h, w) bool pixels of the crop's edges that lie inside the
+            photo (:func:`inner_edges`; None: none do).
 
     Returns:
-        dict[str, float]: contrast, edge, solidity, depth, window, skin and area (x hand area).
+        dict[str, float]: contrast, edge, solidity, depth, window, skin, area (x hand area) and
+        frame (length along ``inner``, in palm lengths).
     """
     L = scene.palm
     h, w = m.shape
@@ -152,6 +177,7 @@ def candidate_cues(
         "window": win,
         "skin": float((scene.skin_d2[m] < SKIN_D2).mean()),
         "area": float(m.sum()) / scene.hand_area,
+        "frame": 0.0 if inner is None else float((m & inner).sum()) / L,
     }
 
 
@@ -364,6 +390,7 @@ def click_object(
     regions: list[np.ndarray],
     iterations: int,
     seed: int,
+    inside: tuple[bool, bool, bool, bool] | None = None,
 ) -> tuple[np.ndarray, list[tuple[float, dict]]]:
     """The object mask from one or more clicks.
 
@@ -376,6 +403,8 @@ def click_object(
             (:func:`click_proposals`), scored with the GrabCut candidates.
         iterations (int): GrabCut iterations.
         seed (int): Seed of OpenCV's RNG.
+        inside (tuple | None): Whether the photo goes on beyond the crop's left, top, right
+            and bottom side (:func:`inner_edges`).
 
     Returns:
         tuple[np.ndarray, list[tuple[float, dict]]]: The (h, w) bool object mask and the
@@ -385,13 +414,13 @@ def click_object(
     pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
     forbidden = scene.hand | scene.other_hands
     p = pts[0]
-    scored = scored_candidates(img, scene, p, regions, iterations, seed)
+    scored = scored_candidates(img, scene, p, regions, iterations, seed, inside)
     if not scored:
         return _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden, []
     best = max(range(len(scored)), key=lambda i: scored[i][0])
     obj = take_back_from_hand(scored[best][2], scene)
     for q in pts[1:]:  # further clicks: their own best candidate joins the object
-        extra = click_object(img, scene, q[None], [], iterations, seed)[0]
+        extra = click_object(img, scene, q[None], [], iterations, seed, inside)[0]
         obj = obj | extra
     return obj, [(s, c) for s, c, _ in scored]
 
@@ -403,6 +432,7 @@ def scored_candidates(
     regions: list[np.ndarray],
     iterations: int,
     seed: int,
+    inside: tuple[bool, bool, bool, bool] | None = None,
 ) -> list[tuple[float, dict[str, float], np.ndarray]]:
     """(score, cues, mask) of every candidate for the click ``p``: the GrabCut candidates
     grown from it and the (non-empty) ``regions`` containing it."""
@@ -411,10 +441,11 @@ def scored_candidates(
     codes = ho.colour_codes(scene.lab)
     gray = cv2.GaussianBlur(scene.lab[..., 0].astype(np.float32), (3, 3), 0)
     grad = np.hypot(cv2.Sobel(gray, cv2.CV_32F, 1, 0), cv2.Sobel(gray, cv2.CV_32F, 0, 1))
+    inner = inner_edges(img.shape[:2], inside)
     cands = click_candidates(img, scene, p, forbidden, iterations, seed)
     cands += [(m, None) for m in regions if m.any()]
     scored = []
     for m, window in cands:
-        c = candidate_cues(m, p, window, scene, exclude, codes, grad)
+        c = candidate_cues(m, p, window, scene, exclude, codes, grad, inner)
         scored.append((click_score(c), c, m))
     return scored
