@@ -210,3 +210,23 @@ def test_the_frame_cue_counts_the_length_along_inner_crop_edges():
     assert abs(inner["frame"] - 80.0 / L) < 1e-9  # 80 px along the crop's inner right side
     # everything else equal, running out of the crop through the photo costs score
     assert click_score(inner) < click_score(photo)
+
+
+def test_settle_moves_a_loose_outline_onto_the_objects_edge():
+    from easyhoi.perception import held_object as ho
+    from easyhoi.perception.click import settle
+    from easyhoi.perception.skin import skin_model
+
+    kp = det().keypoints2d
+    img = canvas()
+    obj = (XX - 200) ** 2 + (YY - 60) ** 2 < 28**2
+    img[obj] = (40, 60, 170)
+    img, hand = finish(img)
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene = ho.Scene(lab, hand, kp, skin_model(lab, kp).d2(lab), hand & False)
+    # a superpixel-like outline: the disk's bounding square, background corners included
+    loose = (np.abs(XX - 200) <= 28) & (np.abs(YY - 60) <= 28)
+    assert iou(loose, obj) < 0.8
+    out = settle(img, loose, scene, np.array([200.0, 60.0]), 5, 0)
+    assert iou(out, obj) > 0.95
+    assert not (out & hand).any()

@@ -48,6 +48,10 @@ FINE_SCALE = 75.0
 RIM = 0.3
 #: Smallest piece joined across the hand, as a share of the clicked piece.
 JOIN_MIN = 0.05
+#: Width of the probable-background band of :func:`settle`, in palm lengths.
+SETTLE_BAND = 0.3
+#: GrabCut iterations of :func:`settle` at most.
+SETTLE_ITERATIONS = 2
 #: Variance added to every Lab channel of the colour Gaussians of :func:`take_back_from_hand`
 #: (8-bit Lab units squared): keeps a flat-coloured sample from giving a degenerate model.
 COLOUR_FLOOR = 4.0
@@ -319,6 +323,26 @@ def take_back_from_hand(m: np.ndarray, scene: ho.Scene) -> np.ndarray:
     return _component_at(m | add, m)
 
 
+def settle(
+    img: np.ndarray, m: np.ndarray, scene: ho.Scene, p: np.ndarray, iterations: int, seed: int
+) -> np.ndarray:
+    """The chosen mask redrawn by one GrabCut seeded by it (:func:`ho.refine`): its eroded core
+    and the click sure object, the mask probable object, a band of :data:`SETTLE_BAND` L around
+    it probable background, the other hands and the rest of the hand mask sure background.
+
+    The candidates' outlines come from a window's GrabCut or from superpixel boundaries; a
+    GrabCut whose colour models are learnt from the chosen object and its immediate
+    surroundings alone moves the outline onto the object's own edge (a superpixel that straddles
+    it, a strip of background taken along). ``m`` itself is kept when the redrawn mask differs
+    from it by more than half (IoU < 0.5)."""
+    L = scene.palm
+    forbidden = (scene.hand & ~m) | scene.other_hands
+    sure = _disk(m.shape, p, max(1.5, SURE * L)) & ~forbidden
+    n_iter = min(iterations, SETTLE_ITERATIONS)
+    r = ho.refine(img, m, forbidden, n_iter, seed, sure=sure, margin=SETTLE_BAND * L)
+    return fill_holes(r) & ~forbidden
+
+
 def click_proposals(
     img: np.ndarray, scene: ho.Scene, p: np.ndarray, props: Proposals
 ) -> list[np.ndarray]:
@@ -418,7 +442,7 @@ def click_object(
     if not scored:
         return _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden, []
     best = max(range(len(scored)), key=lambda i: scored[i][0])
-    obj = take_back_from_hand(scored[best][2], scene)
+    obj = settle(img, take_back_from_hand(scored[best][2], scene), scene, p, iterations, seed)
     for q in pts[1:]:  # further clicks: their own best candidate joins the object
         extra = click_object(img, scene, q[None], [], iterations, seed, inside)[0]
         obj = obj | extra
