@@ -16,7 +16,9 @@ different objects, give candidates that contain it:
   a sleeve) at which GrabCut stops.
 
 Every candidate is scored by cues that hold for objects in photos in general
-(:func:`click_score`), and the best one is kept.
+(:func:`click_score`). The best one gets back what the hand mask took of it
+(:func:`take_back_from_hand`) and its outline is settled by one GrabCut seeded by it
+(:func:`settle`).
 """
 
 from __future__ import annotations
