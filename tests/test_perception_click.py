@@ -134,3 +134,99 @@ def test_the_hands_rim_is_left_out_unless_the_click_is_skin_coloured():
     lab2 = cv2.cvtColor(img2, cv2.COLOR_RGB2LAB).astype(np.float64)
     scene2 = ho.Scene(lab2, hand, kp, skin_model(lab2, kp).d2(lab2), hand & False)
     assert not hand_rim(scene2, np.array([195.0, 60.0])).any()
+
+
+def test_object_pixels_under_a_too_wide_hand_mask_are_taken_back():
+    from easyhoi.perception import held_object as ho
+    from easyhoi.perception.click import take_back_from_hand
+    from easyhoi.perception.skin import skin_model
+
+    kp = det().keypoints2d
+    img = canvas()
+    img, drawn = finish(img)
+    # an orange object pressed against the little finger's side; the hand mask runs up to
+    # 12 px into it
+    obj = (XX >= 140) & (XX < 210) & (YY >= 110) & (YY < 170) & ~drawn
+    img[obj] = (235, 120, 40)
+    dist = cv2.distanceTransform((~drawn).astype(np.uint8), cv2.DIST_L2, 5)
+    hand = drawn | (obj & (dist <= 12))
+    assert (hand & obj).sum() > 500  # the mask took a band of the object
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene = ho.Scene(lab, hand, kp, skin_model(lab, kp).d2(lab), hand & False)
+    seen = obj & ~hand  # what a candidate outside the hand mask gives
+    out = take_back_from_hand(seen, scene)
+    assert np.array_equal(out & ~hand, seen)  # nothing outside the hand mask changes
+    assert (out & hand & obj).sum() >= 0.95 * (hand & obj).sum()  # the band comes back
+    assert not (out & drawn & ~obj).any()  # no skin pixel of the drawn hand
+    assert iou(out, obj) > 0.97 > iou(seen, obj) + 0.05
+
+
+def test_nothing_is_taken_back_from_a_hand_of_the_objects_colour_alone():
+    from easyhoi.perception import held_object as ho
+    from easyhoi.perception.click import take_back_from_hand
+    from easyhoi.perception.skin import skin_model
+
+    kp = det().keypoints2d
+    img = canvas()
+    obj = (np.abs(XX - 195) < 30) & (np.abs(YY - 60) < 40)
+    img[obj] = (40, 60, 170)
+    img, hand = finish(img)
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene = ho.Scene(lab, hand, kp, skin_model(lab, kp).d2(lab), hand & False)
+    seen = obj & ~hand
+    # the hand mask holds only skin here: the blue object's model claims none of it
+    assert np.array_equal(take_back_from_hand(seen, scene), seen)
+
+
+def test_inner_edges_mark_only_the_crop_sides_inside_the_photo():
+    from easyhoi.perception.click import inner_edges
+
+    assert not inner_edges((6, 8), None).any()
+    e = inner_edges((6, 8), (True, False, False, True))  # photo goes on left and below
+    assert e[:, 0].all() and e[-1, :].all()
+    assert int(e.sum()) == 6 + 8 - 1
+    assert not e[0, 1:].any() and not e[:-1, -1].any()
+
+
+def test_the_frame_cue_counts_the_length_along_inner_crop_edges():
+    from easyhoi.perception import held_object as ho
+    from easyhoi.perception.click import candidate_cues, click_score, inner_edges
+    from easyhoi.perception.skin import palm_length, skin_model
+
+    kp = det().keypoints2d
+    img, hand = finish(canvas())
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene = ho.Scene(lab, hand, kp, skin_model(lab, kp).d2(lab), hand & False)
+    L = palm_length(kp)
+    strip = (XX >= 200) & (YY >= 20) & (YY < 100)  # 40 x 80 px, on the right side
+    codes = ho.colour_codes(lab)
+    grad = np.zeros((S, S), np.float32)
+    p = np.array([220.0, 60.0])
+    photo = candidate_cues(strip, p, None, scene, hand, codes, grad, inner_edges((S, S), None))
+    inner = candidate_cues(
+        strip, p, None, scene, hand, codes, grad, inner_edges((S, S), (False, False, True, False))
+    )
+    assert photo["frame"] == 0.0  # the photo's own edge: the object may leave the photo
+    assert abs(inner["frame"] - 80.0 / L) < 1e-9  # 80 px along the crop's inner right side
+    # everything else equal, running out of the crop through the photo costs score
+    assert click_score(inner) < click_score(photo)
+
+
+def test_settle_moves_a_loose_outline_onto_the_objects_edge():
+    from easyhoi.perception import held_object as ho
+    from easyhoi.perception.click import settle
+    from easyhoi.perception.skin import skin_model
+
+    kp = det().keypoints2d
+    img = canvas()
+    obj = (XX - 200) ** 2 + (YY - 60) ** 2 < 28**2
+    img[obj] = (40, 60, 170)
+    img, hand = finish(img)
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+    scene = ho.Scene(lab, hand, kp, skin_model(lab, kp).d2(lab), hand & False)
+    # a superpixel-like outline: the disk's bounding square, background corners included
+    loose = (np.abs(XX - 200) <= 28) & (np.abs(YY - 60) <= 28)
+    assert iou(loose, obj) < 0.8
+    out = settle(img, loose, scene, np.array([200.0, 60.0]), 5, 0)
+    assert iou(out, obj) > 0.95
+    assert not (out & hand).any()

@@ -16,7 +16,9 @@ different objects, give candidates that contain it:
   a sleeve) at which GrabCut stops.
 
 Every candidate is scored by cues that hold for objects in photos in general
-(:func:`click_score`), and the best one is kept.
+(:func:`click_score`). The best one gets back what the hand mask took of it
+(:func:`take_back_from_hand`) and its outline is settled by one GrabCut seeded by it
+(:func:`settle`).
 """
 
 from __future__ import annotations
@@ -48,17 +50,30 @@ FINE_SCALE = 75.0
 RIM = 0.3
 #: Smallest piece joined across the hand, as a share of the clicked piece.
 JOIN_MIN = 0.05
+#: Width of the probable-background band of :func:`settle`, in palm lengths.
+SETTLE_BAND = 0.3
+#: GrabCut iterations of :func:`settle` at most.
+SETTLE_ITERATIONS = 2
+#: Variance added to every Lab channel of the colour Gaussians of :func:`take_back_from_hand`
+#: (8-bit Lab units squared): keeps a flat-coloured sample from giving a degenerate model.
+COLOUR_FLOOR = 4.0
+#: Fewest pixels a colour sample of :func:`take_back_from_hand` needs.
+MIN_SAMPLES = 30
 #: Score weights of :func:`click_score`.
 CLICK_WEIGHTS = {
-    "contrast": 3.0,
-    "edge": 2.0,
-    "solidity": 0.5,
-    "depth": 3.0,
-    "window": -1.5,
-    "skin": -0.5,
-    "size": -1.0,
-    "log_area": 0.4,
+    "contrast": 3.8,
+    "edge": 1.4,
+    "solidity": 0.2,
+    "depth": 3.4,
+    "window": -1.6,
+    "skin": -0.55,
+    "size": -0.45,
+    "log_area": 0.35,
+    "frame": -0.4,
 }
+#: Length along the crop's inner edges (those inside the photo) beyond which the ``frame`` cue
+#: stops growing, in palm lengths.
+FRAME_CAP = 4.0
 #: Object area range, x hand area, outside which the size penalty grows with the log-ratio.
 CLICK_AREA = (0.02, 4.0)
 
@@ -101,7 +116,24 @@ def click_score(c: dict[str, float]) -> float:
         + w["skin"] * c["skin"]
         + w["size"] * abs(np.log(a / np.clip(a, lo, hi)))
         + w["log_area"] * np.log(a)
+        + w["frame"] * min(c.get("frame", 0.0), FRAME_CAP)
     )
+
+
+def inner_edges(shape: tuple[int, int], inside: tuple[bool, bool, bool, bool] | None):
+    """(h, w) bool one-pixel border of the working crop on the sides that lie inside the photo.
+
+    ``inside`` says, for the left, top, right and bottom side of the crop, whether the photo
+    goes on beyond it (None: the crop is the whole photo)."""
+    out = np.zeros(shape, bool)
+    if inside is None:
+        return out
+    left, top, right, bottom = inside
+    out[:, 0] |= bool(left)
+    out[0, :] |= bool(top)
+    out[:, -1] |= bool(right)
+    out[-1, :] |= bool(bottom)
+    return out
 
 
 def candidate_cues(
@@ -112,6 +144,7 @@ def candidate_cues(
     exclude: np.ndarray,
     codes: np.ndarray,
     grad: np.ndarray,
+    inner: np.ndarray | None = None,
 ) -> dict[str, float]:
     """Cues of one candidate mask for a click.
 
@@ -123,9 +156,12 @@ def candidate_cues(
         exclude (np.ndarray): (h, w) bool pixels left out of the outline cues (the hands).
         codes (np.ndarray): (h, w) int colour bins (:func:`ho.colour_codes`).
         grad (np.ndarray): (h, w) float gradient magnitude of the lightness.
+        inner (np.ndarray | None): (h, w) bool pixels of the crop's edges that lie inside the
+            photo (:func:`inner_edges`; None: none do).
 
     Returns:
-        dict[str, float]: contrast, edge, solidity, depth, window, skin and area (x hand area).
+        dict[str, float]: contrast, edge, solidity, depth, window, skin, area (x hand area) and
+        frame (length along ``inner``, in palm lengths).
     """
     L = scene.palm
     h, w = m.shape
@@ -147,6 +183,7 @@ def candidate_cues(
         "window": win,
         "skin": float((scene.skin_d2[m] < SKIN_D2).mean()),
         "area": float(m.sum()) / scene.hand_area,
+        "frame": 0.0 if inner is None else float((m & inner).sum()) / L,
     }
 
 
@@ -232,6 +269,82 @@ def join_across_hand(fg: np.ndarray, m: np.ndarray, hand: np.ndarray, L: float):
     return fill_holes(m | np.isin(cc, touch))
 
 
+def _gaussian(px: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Mean, inverse covariance and log-determinant of a full-covariance Gaussian fitted to
+    (n, 3) Lab samples (covariance widened by :data:`COLOUR_FLOOR` per channel)."""
+    mu = px.mean(0)
+    cov = np.cov(px.T) + np.eye(3) * COLOUR_FLOOR
+    return mu, np.linalg.inv(cov), float(np.linalg.slogdet(cov)[1])
+
+
+def _nll(x: np.ndarray, g: tuple[np.ndarray, np.ndarray, float]) -> np.ndarray:
+    """Twice the negative log-likelihood (up to a constant) of (n, 3) samples under ``g``."""
+    mu, inv, logdet = g
+    d = x - mu
+    return np.einsum("ni,ij,nj->n", d, inv, d) + logdet
+
+
+def take_back_from_hand(m: np.ndarray, scene: ho.Scene) -> np.ndarray:
+    """``m`` plus the pixels of the hand mask that look like the object rather than the hand
+    and join it.
+
+    The hand mask is grown from the skeleton and is wider than the fingers: where a held object
+    touches them, the mask takes in a band of the object (the part of a cup below the fingers,
+    a pen under the thumb). Inside the hand mask, a pixel is given to the object when its colour
+    is more likely under a Gaussian of the object's visible pixels (outside the hand) than under
+    one of the hand's skin-coloured bone cores (the pixels surely the hand). Full covariances,
+    not a skin threshold: an orange cup and a beige hand both pass a loose skin test, but their
+    colours still separate when the two models are compared. The pixels taken back are opened
+    (3 x 3) and kept only where they connect to ``m``; the other hands are never taken.
+
+    Args:
+        m (np.ndarray): (h, w) bool object mask.
+        scene (ho.Scene): The hand, its keypoints and colour model in the crop.
+
+    Returns:
+        np.ndarray: (h, w) bool mask (``m`` itself when either colour sample is too small).
+    """
+    h, w = m.shape
+    L = scene.palm
+    core = (
+        draw_skeleton((h, w), scene.kp, 0.12 * L, palm=False)
+        & scene.hand
+        & (scene.skin_d2 < SKIN_D2)
+    )
+    visible = m & ~scene.hand
+    zone = scene.hand & ~scene.other_hands & ~m
+    if core.sum() < MIN_SAMPLES or visible.sum() < MIN_SAMPLES or not zone.any():
+        return m
+    g_obj, g_hand = _gaussian(scene.lab[visible]), _gaussian(scene.lab[core])
+    ys, xs = np.nonzero(zone)
+    px = scene.lab[ys, xs]
+    ok = _nll(px, g_obj) < _nll(px, g_hand)
+    add = np.zeros((h, w), np.uint8)
+    add[ys[ok], xs[ok]] = 1
+    add = cv2.morphologyEx(add, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+    return _component_at(m | add, m)
+
+
+def settle(
+    img: np.ndarray, m: np.ndarray, scene: ho.Scene, p: np.ndarray, iterations: int, seed: int
+) -> np.ndarray:
+    """The chosen mask redrawn by one GrabCut seeded by it (:func:`ho.refine`): its eroded core
+    and the click sure object, the mask probable object, a band of :data:`SETTLE_BAND` L around
+    it probable background, the other hands and the rest of the hand mask sure background.
+
+    The candidates' outlines come from a window's GrabCut or from superpixel boundaries; a
+    GrabCut whose colour models are learnt from the chosen object and its immediate
+    surroundings alone moves the outline onto the object's own edge (a superpixel that straddles
+    it, a strip of background taken along). ``m`` itself is kept when the redrawn mask differs
+    from it by more than half (IoU < 0.5)."""
+    L = scene.palm
+    forbidden = (scene.hand & ~m) | scene.other_hands
+    sure = _disk(m.shape, p, max(1.5, SURE * L)) & ~forbidden
+    n_iter = min(iterations, SETTLE_ITERATIONS)
+    r = ho.refine(img, m, forbidden, n_iter, seed, sure=sure, margin=SETTLE_BAND * L)
+    return fill_holes(r) & ~forbidden
+
+
 def click_proposals(
     img: np.ndarray, scene: ho.Scene, p: np.ndarray, props: Proposals
 ) -> list[np.ndarray]:
@@ -303,6 +416,7 @@ def click_object(
     regions: list[np.ndarray],
     iterations: int,
     seed: int,
+    inside: tuple[bool, bool, bool, bool] | None = None,
 ) -> tuple[np.ndarray, list[tuple[float, dict]]]:
     """The object mask from one or more clicks.
 
@@ -315,6 +429,8 @@ def click_object(
             (:func:`click_proposals`), scored with the GrabCut candidates.
         iterations (int): GrabCut iterations.
         seed (int): Seed of OpenCV's RNG.
+        inside (tuple | None): Whether the photo goes on beyond the crop's left, top, right
+            and bottom side (:func:`inner_edges`).
 
     Returns:
         tuple[np.ndarray, list[tuple[float, dict]]]: The (h, w) bool object mask and the
@@ -323,22 +439,39 @@ def click_object(
     h, w = img.shape[:2]
     pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
     forbidden = scene.hand | scene.other_hands
+    p = pts[0]
+    scored = scored_candidates(img, scene, p, regions, iterations, seed, inside)
+    if not scored:
+        return _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden, []
+    best = max(range(len(scored)), key=lambda i: scored[i][0])
+    obj = settle(img, take_back_from_hand(scored[best][2], scene), scene, p, iterations, seed)
+    for q in pts[1:]:  # further clicks: their own best candidate joins the object
+        extra = click_object(img, scene, q[None], [], iterations, seed, inside)[0]
+        obj = obj | extra
+    return obj, [(s, c) for s, c, _ in scored]
+
+
+def scored_candidates(
+    img: np.ndarray,
+    scene: ho.Scene,
+    p: np.ndarray,
+    regions: list[np.ndarray],
+    iterations: int,
+    seed: int,
+    inside: tuple[bool, bool, bool, bool] | None = None,
+) -> list[tuple[float, dict[str, float], np.ndarray]]:
+    """(score, cues, mask) of every candidate for the click ``p``: the GrabCut candidates
+    grown from it and the (non-empty) ``regions`` containing it."""
+    forbidden = scene.hand | scene.other_hands
     exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     codes = ho.colour_codes(scene.lab)
     gray = cv2.GaussianBlur(scene.lab[..., 0].astype(np.float32), (3, 3), 0)
     grad = np.hypot(cv2.Sobel(gray, cv2.CV_32F, 1, 0), cv2.Sobel(gray, cv2.CV_32F, 0, 1))
-    p = pts[0]
+    inner = inner_edges(img.shape[:2], inside)
     cands = click_candidates(img, scene, p, forbidden, iterations, seed)
     cands += [(m, None) for m in regions if m.any()]
     scored = []
     for m, window in cands:
-        c = candidate_cues(m, p, window, scene, exclude, codes, grad)
+        c = candidate_cues(m, p, window, scene, exclude, codes, grad, inner)
         scored.append((click_score(c), c, m))
-    if not scored:
-        return _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden, []
-    best = max(range(len(scored)), key=lambda i: scored[i][0])
-    obj = scored[best][2]
-    for q in pts[1:]:  # further clicks: their own best candidate joins the object
-        extra = click_object(img, scene, q[None], [], iterations, seed)[0]
-        obj = obj | extra
-    return obj, [(s, c) for s, c, _ in scored]
+    return scored

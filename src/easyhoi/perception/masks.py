@@ -234,7 +234,13 @@ class ClassicalHOISegmenter:
         props = None
         if clicks:
             obj, hyp, best, props = clicked_object(
-                img, scene, to_work(prompts.object_points), proposals, self.iterations, self.seed
+                img,
+                scene,
+                to_work(prompts.object_points),
+                proposals,
+                self.iterations,
+                self.seed,
+                inside=(x0 > 0, y0 > 0, x1 < W, y1 < H),  # crop sides inside the photo
             )
             has_object = bool(obj.any())
         elif prompted:

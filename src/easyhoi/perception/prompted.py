@@ -157,6 +157,7 @@ def clicked_object(
     make_proposals: Callable[[], Proposals],
     iterations: int,
     seed: int,
+    inside: tuple[bool, bool, bool, bool] | None = None,
 ) -> tuple[np.ndarray, ho.Hypotheses, int | None, Proposals | None]:
     """The object from object points alone.
 
@@ -172,6 +173,9 @@ def clicked_object(
         make_proposals (Callable[[], Proposals]): Makes the region proposals of the crop.
         iterations (int): GrabCut iterations.
         seed (int): Seed of OpenCV's RNG.
+        inside (tuple | None): Whether the photo goes on beyond the crop's left, top, right
+            and bottom side (the ``frame`` cue of :func:`easyhoi.perception.click.click_score`;
+            None: the crop is the whole photo).
 
     Returns:
         tuple: (h, w) bool object mask, the hypotheses (the output mask alone), the index of
@@ -181,7 +185,7 @@ def clicked_object(
     pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
     props = make_proposals()
     fallback = click_proposals(img, scene, pts[0], props)
-    obj, _ = click_object(img, scene, pts, fallback, iterations, seed)
+    obj, _ = click_object(img, scene, pts, fallback, iterations, seed, inside)
     return obj, mask_hypothesis(obj, scene), 0, props
 
 
