@@ -26,9 +26,9 @@ from easyhoi.perception.shapes.common import (
 #: Axis tilts out of the image tried (degrees); see module docs.
 TILTS_DEG = (10, 15, 20, 25, 30, 35, 40, 45, 50, 55, 60, 65, 70)
 #: A tilted fit is kept when its silhouette IoU is within this of the untilted one's.
-TILT_IOU_TOLERANCE = 0.03
+TILT_IOU_TOLERANCE = 0.015
 #: Rim evidence needed for a tilt: mean gradient on the rim over the object's median gradient.
-RIM_MIN_RATIO = 2.0
+RIM_MIN_RATIO = 3.0
 #: Rim samples needed well inside the visible object.
 RIM_MIN_SAMPLES = 6
 #: Gradient floor (grey levels in [0, 1] per pixel, about the noise of a camera): a uniformly
