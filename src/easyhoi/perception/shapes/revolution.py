@@ -7,6 +7,21 @@ profile is revolved into rings capped by flat disks. The depth follows from the 
 cross-sections), so the family has a rigid depth. Evidence besides the silhouette IoU: the
 reflection IoU (the outline is mirror-symmetric about the axis), recorded as
 ``reflection_iou``; the selector uses ``min(reflection IoU, profile IoU)``.
+
+Tilt. A can, a cup or a bottle tilted out of the image by ``t`` has a shorter outline, and its
+flat end disk of radius ``r_e`` is seen as an ellipse with semi-axes ``r_e`` across the axis and
+``r_e sin(t)`` along it: the outline's tips are those ellipses' outer halves, and the inner half
+of the end facing the camera is a rim inside the outline, an image edge (the end face and the
+side meet at a sharp edge and are lit differently). The outline alone cannot tell a tilted flat
+end from a rounded one, so the rim decides: for each tilt in :data:`TILTS_DEG`, each end's
+body stops ``r_e sin(t)`` inside the tip and the predicted rim's mean gradient over the object's
+median gradient is measured (:func:`rim_support`; samples a few pixels inside the visible object
+only, since the outline is an edge too). The tilt with the strongest rim, at least
+:data:`RIM_MIN_RATIO`, is kept when its re-projected outline fits within
+:data:`TILT_IOU_TOLERANCE` of the untilted one; the body is then revolved about the tilted axis
+(its length ``(s1 - s0) / cos(t)``) with flat ends. Without an image or a rim, the axis lies in
+the image plane. Open cups, handles and labels also draw edges inside the outline, so the cue
+misfires on them (module ``fit`` records ``tilt_deg`` and ``rim_ratio``).
 """
 
 from __future__ import annotations
