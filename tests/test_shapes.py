@@ -276,3 +276,42 @@ def test_tilt_from_the_keypoints_on_an_elongated_object():
     k3[[7, 11], 0] = 0.004
     k2[[7, 11], 0] = 150 + 4
     assert hand_cues(k2, k3 - k3.mean(0), m, hand).axis_slope == 0.0
+
+
+def tilted_can(tilt_deg=40.0, length=120.0, radius=30.0, shape=(220, 260)):
+    """Silhouette and shaded image of a flat-ended cylinder whose axis rises out of the image by
+    ``tilt_deg`` (orthographic): grey side, the near end face lighter (its rim is an edge)."""
+    from easyhoi.perception.shapes.revolution import tilted_revolution_mesh
+
+    th = np.radians(tilt_deg)
+    c, a = np.array([130.0, 110.0]), np.array([1.0, 0.0])
+    s = np.linspace(-length / 2, length / 2, 40) * np.cos(th)
+    v, f = tilted_revolution_mesh(c, a, s, np.full(40, radius), th, 96)
+    m = common.polygons_mask([v[t][:, :2] for t in f], shape)
+    img = np.full((*shape, 3), 60, np.uint8)
+    img[m] = 110
+    end = (int(round(c[0] + s[0])), int(round(c[1])))
+    axes = (int(round(radius * np.sin(th))), int(round(radius)))
+    if tilt_deg > 0:
+        cv2.ellipse(img, end, axes, 0, 0, 360, (200, 200, 200), -1)
+    img[~m] = 60
+    return m, img
+
+
+@pytest.mark.parametrize("tilt", [0.0, 40.0])
+def test_revolution_recovers_the_tilt_of_a_can_from_its_rim(tilt):
+    from easyhoi.perception.shapes import revolution
+
+    m, img = tilted_can(tilt)
+    wf = common.work_frame(m, image=img)
+    h = revolution.fit(wf)
+    assert h.info["tilt_deg"] == pytest.approx(tilt, abs=7.5)
+    assert h.iou > 0.95
+    # the length along the tilted axis and the diameter come back (working pixels -> source)
+    th = np.radians(h.info["tilt_deg"])
+    axis3 = np.array([np.cos(th), 0.0, np.sin(th)])
+    length = np.ptp(h.verts @ axis3) * wf.scale
+    assert length == pytest.approx(120.0, rel=0.1)
+    # without an image there is no rim evidence: the axis stays in the image plane
+    plain = revolution.fit(common.work_frame(m))
+    assert plain.info["tilt_deg"] == 0.0

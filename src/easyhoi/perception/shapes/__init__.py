@@ -27,7 +27,8 @@ the amodal outline in a working frame (:mod:`.common`) and scored::
   inflation) take the gap: thinned to a flat grip's, or thickened to the lower bound.
 * ``tilt`` — the selection and the fits see the object lying parallel to the image. When the
   keypoints on an elongated object give its axis's slope out of the image
-  (:func:`.hand_cues.axis_slope`), the winner (all but the cuboid, whose 3D rotation is fitted)
+  (:func:`.hand_cues.axis_slope`), the winner (all but the cuboid, whose 3D rotation is fitted,
+  and a surface of revolution already tilted by the rim of its end)
   is sheared to it, ``z' = z + s b`` (``s`` along the outline's long axis, ``b`` the slope):
   the silhouette is unchanged and the length along the axis becomes ``L sqrt(1 + b^2)``.
 * ``relief`` (with a depth model) — :data:`FRONT_WEIGHT` x the correlation between the depth
@@ -209,7 +210,12 @@ def fit_shape(
     verts[:, :2] = wf.to_source(verts[:, :2])
     verts[:, 2] *= wf.scale
     slope = 0.0
-    if cues is not None and cues.axis_slope and win.name != "cuboid":
+    if (
+        cues is not None
+        and cues.axis_slope
+        and win.name != "cuboid"
+        and not win.info.get("tilt_deg")
+    ):
         slope = cues.axis_slope
         verts = tilt_about_axis(verts, mask, cues.axis_px, slope)
     info = {

@@ -7,10 +7,26 @@ profile is revolved into rings capped by flat disks. The depth follows from the 
 cross-sections), so the family has a rigid depth. Evidence besides the silhouette IoU: the
 reflection IoU (the outline is mirror-symmetric about the axis), recorded as
 ``reflection_iou``; the selector uses ``min(reflection IoU, profile IoU)``.
+
+Tilt. A can, a cup or a bottle tilted out of the image by ``t`` has a shorter outline, and its
+flat end disk of radius ``r_e`` is seen as an ellipse with semi-axes ``r_e`` across the axis and
+``r_e sin(t)`` along it: the outline's tips are those ellipses' outer halves, and the inner half
+of the end facing the camera is a rim inside the outline, an image edge (the end face and the
+side meet at a sharp edge and are lit differently). The outline alone cannot tell a tilted flat
+end from a rounded one, so the rim decides: for each tilt in :data:`TILTS_DEG`, each end's
+body stops ``r_e sin(t)`` inside the tip and the predicted rim's mean gradient over the object's
+median gradient is measured (:func:`rim_support`; samples a few pixels inside the visible object
+only, since the outline is an edge too). The tilt with the strongest rim, at least
+:data:`RIM_MIN_RATIO`, is kept when its re-projected outline fits within
+:data:`TILT_IOU_TOLERANCE` of the untilted one; the body is then revolved about the tilted axis
+(its length ``(s1 - s0) / cos(t)``) with flat ends. Without an image or a rim, the axis lies in
+the image plane. Open cups, handles and labels also draw edges inside the outline, so the cue
+misfires on them (module ``fit`` records ``tilt_deg`` and ``rim_ratio``).
 """
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from scipy import ndimage
 
@@ -21,6 +37,20 @@ from easyhoi.perception.shapes.common import (
     principal_axes,
     rasterize,
 )
+
+#: Axis tilts out of the image tried (degrees); see module docs.
+TILTS_DEG = (10, 15, 20, 25, 30, 35, 40, 45, 50, 55, 60, 65, 70)
+#: A tilted fit is kept when its silhouette IoU is within this of the untilted one's.
+TILT_IOU_TOLERANCE = 0.015
+#: Rim evidence needed for a tilt: mean gradient on the rim over the object's median gradient.
+RIM_MIN_RATIO = 3.0
+#: Rim samples needed well inside the visible object.
+RIM_MIN_SAMPLES = 6
+#: Gradient floor (grey levels in [0, 1] per pixel, about the noise of a camera): a uniformly
+#: coloured object's median gradient is noise, not a scale for its edges.
+GRADIENT_FLOOR = 0.01
+#: Smallest depth of a rim's ellipse along the axis (working pixels) that is told from the tip.
+RIM_MIN_DEPTH = 4.0
 
 
 def reflect_mask(mask: np.ndarray, c: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -126,12 +156,122 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.logical_and(a, b).sum() / union) if union else 0.0
 
 
+def tilted_revolution_mesh(c, a, s, r, tilt: float, n_segments: int = 48):
+    """Vertices (u, v, z) and faces of the profile ``r(s)`` revolved about an axis through ``c``
+    that rises out of the image by ``tilt`` radians towards ``+a``; ``s`` is the axial position
+    seen in the image (the axial length is ``s / cos(tilt)``), the ends are flat disks."""
+    a = np.asarray(a, dtype=np.float64)
+    n = np.array([-a[1], a[0]])
+    ct, st = np.cos(tilt), np.sin(tilt)
+    ax3 = np.array([a[0] * ct, a[1] * ct, st])
+    n3 = np.array([n[0], n[1], 0.0])
+    m3 = np.cross(ax3, n3)
+    K, M = len(s), n_segments
+    th = 2 * np.pi * np.arange(M) / M
+    centre = np.array([c[0], c[1], 0.0]) + (s / ct)[:, None] * ax3  # (K, 3)
+    ring = r[:, None, None] * (np.cos(th)[None, :, None] * n3 + np.sin(th)[None, :, None] * m3)
+    verts = (centre[:, None, :] + ring).reshape(-1, 3)
+    verts = np.concatenate([verts, centre[[0, -1]]])
+    idx = np.arange(K * M).reshape(K, M)
+    i0, i1 = idx[:-1], idx[1:]
+    j0, j1 = i0, np.roll(i0, -1, axis=1)
+    k0, k1 = i1, np.roll(i1, -1, axis=1)
+    quads = np.concatenate(
+        [np.stack([j0, k0, j1], -1).reshape(-1, 3), np.stack([j1, k0, k1], -1).reshape(-1, 3)]
+    )
+    first, last = K * M, K * M + 1
+    cap0 = np.stack([np.full(M, first), idx[0], np.roll(idx[0], -1)], -1)
+    cap1 = np.stack([np.full(M, last), np.roll(idx[-1], -1), idx[-1]], -1)
+    return verts, np.concatenate([quads, cap0, cap1]).astype(np.int64)
+
+
+def end_centre(s: np.ndarray, r: np.ndarray, k: float, from_start: bool) -> float:
+    """Axial position (image units) of a flat end disk whose ellipse, ``k r`` deep along the
+    axis, just reaches the outline's tip: the first ``x`` from the tip with ``x >= k r(x)``."""
+    x = s - s[0] if from_start else s[-1] - s
+    ok = np.nonzero(x >= k * r)[0]
+    if not len(ok):
+        return float("nan")
+    i = ok[0] if from_start else ok[-1]
+    j = i - 1 if from_start else i + 1
+    if 0 <= j < len(s):  # linear crossing between the last sample short of it and this one
+        f0, f1 = x[j] - k * r[j], x[i] - k * r[i]
+        w = f1 / (f1 - f0) if f1 != f0 else 0.0
+        return float(s[i] + w * (s[j] - s[i]))
+    return float(s[i])
+
+
+def rim_support(wf: WorkFrame, c, a, s, r, tilt: float) -> tuple[float, float, float]:
+    """(edge ratio, s0, s1): image gradient on the visible rims of flat end disks on an axis
+    tilted by ``tilt``, relative to the object's median gradient, and the body's end positions.
+
+    The end disk of radius ``r_e`` is seen as an ellipse with semi-axes ``r_e`` across the axis
+    and ``r_e sin(tilt)`` along it; the half towards the body lies inside the outline, where the
+    end face meets the side at a sharp rim (the two are lit differently). Only samples a few
+    pixels inside the visible object count (the outline itself is an edge), and the better end
+    is kept: only the end facing the camera shows its rim.
+    """
+    k = np.sin(tilt)
+    s0, s1 = end_centre(s, r, k, True), end_centre(s, r, k, False)
+    if not (np.isfinite(s0) and np.isfinite(s1)) or s1 - s0 < 0.1 * (s[-1] - s[0]):
+        return 0.0, s0, s1
+    if wf.gray is None:
+        return 0.0, s0, s1
+    mag, base, inner = _gradient(wf)
+    if base <= 0:
+        return 0.0, s0, s1
+    n = np.array([-a[1], a[0]])
+    phi = np.linspace(0.15 * np.pi, 0.85 * np.pi, 24)
+    best = 0.0
+    for se, inward in ((s0, 1.0), (s1, -1.0)):
+        re = float(np.interp(se, s, r))
+        if k * re < RIM_MIN_DEPTH:  # a rim this close to the tip is not told from the outline
+            continue
+        pts = c + se * a + (re * np.cos(phi))[:, None] * n
+        pts = pts + (inward * k * re * np.sin(phi))[:, None] * a
+        ij = np.floor(pts).astype(int)
+        ok = (
+            (ij[:, 0] >= 0)
+            & (ij[:, 0] < mag.shape[1])
+            & (ij[:, 1] >= 0)
+            & (ij[:, 1] < mag.shape[0])
+        )
+        ij = ij[ok]
+        ij = ij[inner[ij[:, 1], ij[:, 0]]]
+        if len(ij) >= RIM_MIN_SAMPLES:
+            best = max(best, float(mag[ij[:, 1], ij[:, 0]].mean() / base))
+    return best, s0, s1
+
+
+def _gradient(wf: WorkFrame):
+    """(3x3-max gradient magnitude, its median inside the object, pixels well inside)."""
+    g = cv2.GaussianBlur(wf.gray, (0, 0), 0.8)
+    mag = np.hypot(cv2.Sobel(g, cv2.CV_64F, 1, 0, ksize=3), cv2.Sobel(g, cv2.CV_64F, 0, 1, ksize=3))
+    inner = cv2.erode(wf.visible.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+    base = max(float(np.median(mag[inner])), GRADIENT_FLOOR) if inner.sum() > 20 else 0.0
+    return cv2.dilate(mag, np.ones((3, 3), np.uint8)), base, inner
+
+
 def fit(wf: WorkFrame, n_rings: int = 48, n_segments: int = 40) -> Hypothesis:
-    """The surface-of-revolution hypothesis of the working frame's mask."""
+    """The surface-of-revolution hypothesis of the working frame's mask (module docs: tilt)."""
     sym = symmetry(wf.mask, n_rings)
-    verts, faces = revolution_mesh(sym["center"], sym["axis"], sym["s"], sym["r"], n_segments)
+    c, a, s, r = sym["center"], sym["axis"], sym["s"], sym["r"]
+    verts, faces = tilted_revolution_mesh(c, a, s, r, 0.0, n_segments)
     iou = fit_iou(rasterize(verts[:, :2], faces, wf.mask.shape), wf)
+    tilt_deg, rim = 0.0, 0.0
+    for deg in TILTS_DEG:
+        ratio, s0, s1 = rim_support(wf, c, a, s, r, np.radians(deg))
+        if ratio < RIM_MIN_RATIO or ratio <= rim:
+            continue
+        sb = np.linspace(s0, s1, n_rings)
+        v, f = tilted_revolution_mesh(c, a, sb, np.interp(sb, s, r), np.radians(deg), n_segments)
+        i = fit_iou(rasterize(v[:, :2], f, wf.mask.shape), wf)
+        if i >= iou - TILT_IOU_TOLERANCE:
+            tilt_deg, rim, verts, faces, best_iou = float(deg), ratio, v, f, i
+    if tilt_deg:
+        iou = best_iou
     info = dict(reflection_iou=round(sym["reflection_iou"], 4),
                 profile_iou=round(sym["profile_iou"], 4),
-                axis=[round(float(x), 6) for x in sym["axis"]])  # fmt: skip
+                axis=[round(float(x), 6) for x in sym["axis"]], tilt_deg=tilt_deg,
+                rim_ratio=round(rim, 3))  # fmt: skip
     return Hypothesis("revolution", verts, faces, min(iou, sym["reflection_iou"]), True, info=info)
