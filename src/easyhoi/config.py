@@ -135,6 +135,10 @@ class CameraStageConfig:
     frame, e.g. a scan)."""
     optimise_focal: bool = True
     """Optimise fx and fy together with the 6-DoF pose (8 DoF); False keeps the focal fixed."""
+    square_pixels: bool = False
+    """One focal length for both image axes (fx = fy, 7 DoF): every photo's camera has square
+    pixels, and a stretched camera (fx != fy) distorts the hand's projection in a way no rigid
+    hand follows. False = the reference implementation's separate fx, fy (8 DoF)."""
 
     def __post_init__(self):
         _finite(self)
@@ -474,6 +478,9 @@ _FAST = EasyHOIConfig(
             # object in any canonical frame, and a bad start rotation is a local minimum
             init_from_masks=True,
             init_rotations="cube",
+            # a photo's pixels are square: one focal for both axes (a stretched camera distorts
+            # the hand's projection, which no rigid hand follows)
+            square_pixels=True,
         ),
         contact=ContactStageConfig(
             max_iters=150,
