@@ -209,6 +209,9 @@ class ContactStageConfig:
     initial_competes: bool = False
     """The state the stage starts from competes for the best state (False = the paper's: only
     states from the first registration on)."""
+    rescan_range: float = 2.0
+    """The depth scans at the registrations try metric scales from 1 / rescan_range to
+    rescan_range times the current one (41 log-spaced factors; 2 = the placement's own scan)."""
     score_band: bool = False
     """The best-state score measures touching with the depth scan's contact-band term (the
     contact zones on the surface, scan_band) instead of the closest vertex's distance to it;
@@ -220,6 +223,10 @@ class ContactStageConfig:
         _non_negative(self, "max_iters", "stop_loss", "patience", "min_delta", "icp_iters")
         _non_negative(self, "icp_tolerance", "rotation_prior_weight", "scan_tie_margin")
         _non_negative(self, "scan_band")
+        if not self.rescan_range > 1.0:
+            raise InvalidInputError(
+                f"ContactStageConfig.rescan_range must be > 1, got {self.rescan_range}"
+            )
         _check_schedule(self)
         if any(r < 0 for r in self.register_at) or list(self.register_at) != sorted(
             set(self.register_at)
@@ -495,12 +502,8 @@ _FAST = EasyHOIConfig(
             max_iters=150,
             patience=20,
             resolution_schedule=(0.5, 1.0),
-            # no registrations: the hand keeps the depth the placement scanned for it (from 1/2
-            # to 2 times the photo's overlap depth) and the stage fits its rotation and position
-            # to the hand mask. The registrations' re-scans and ICP moves changed that depth
-            # after a few pixels of mask fit, by the estimator's articulation (about 1 cm off):
-            # they raised the simulation displacement (docs/benchmark.md)
-            register_at=(),
+            # the paper's 100 / 200 scaled to the shorter stage
+            register_at=(20, 60),
             icp_iters=20,
             # the hand estimator's rotation is better than what the hand mask alone implies (a
             # silhouette is nearly symmetric under rotation): keep it unless the mask insists
@@ -508,6 +511,10 @@ _FAST = EasyHOIConfig(
             # place the hand at the depth where its contact zones lie on the object's surface,
             # not where a single vertex first touches it: a grasp touches with pads and palm
             scan_band=0.02,
+            # the placement scanned depths from 1/2 to 2 times its first guess; the scans at the
+            # registrations only adjust that depth to the moves of the mask fit (a second wide
+            # scan jumped to another touching depth, e.g. the palm instead of the pinch)
+            rescan_range=1.15,
             # a registration moves the hand only along the camera rays: the photo fixes where
             # the hand is in the image, so the in-plane part of the ICP (biased where the two
             # surfaces differ in shape) would only pull the hand off its silhouette
