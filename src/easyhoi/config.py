@@ -303,8 +303,8 @@ class RefineStageConfig:
     """In the first phase of the schedule only the global pose moves (the fingers keep the
     estimator's articulation); False = the paper's joint optimisation."""
     push_out_steps: int = 0
-    """Before the gradient steps, move the penetrating hand rigidly out of the object along its
-    normal in up to this many steps (0 = off, the paper)."""
+    """Before the gradient steps, move the penetrating hand rigidly out of the object in up to
+    this many steps, along the camera rays (optim.refine.push_out; 0 = off, the paper)."""
     push_out_scale: bool = False
     """The push-out along the camera ray changes the metric scale (the hand's depth relative to
     the object, its projection kept exactly) instead of translating the hand along the ray
