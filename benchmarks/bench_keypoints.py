@@ -8,9 +8,11 @@ and two sets of 2D keypoints are compared with the reference:
 * the final hand's, its 21 keypoints reprojected through the fitted object camera.
 
 Per image: mean pixel error and PCK@0.05 / PCK@0.1 (a keypoint within 5 % / 10 % of the larger
-side of the reference keypoints' box), and the ``hand_change`` summary of the result (how far
-the optimizer moved the hand from the estimator). The optimizer must not make the hand worse
-in the photo than the detector's keypoints: ``final <= detector`` per image is the check.
+side of the reference keypoints' box), the mean pixel error of every stage snapshot (initial,
+camera, contact, refine: where the hand gains or loses in the photo), and the ``hand_change``
+summary of the result (how far the optimizer moved the hand from the estimator). The optimizer
+must not make the hand worse in the photo than the detector's keypoints: ``final <= detector``
+per image is the check.
 
 Data: ``../shared/data/keypoints-dev`` (8 FreiHAND crops, ``test_freihand.json``) and the
 project's own references ``tests/data/keypoint_refs/*.json`` (one hand of a development photo
@@ -92,14 +94,27 @@ def errors(pred: np.ndarray, ref: np.ndarray, visible: np.ndarray | None = None)
 
 def final_keypoints(result) -> np.ndarray:
     """(21, 2) keypoints of the result's hand reprojected through its camera."""
+    return _reprojected(result.hand_model, result.hand_params, result.camera, result.metric_scale)
+
+
+def stage_keypoints(result) -> dict[str, np.ndarray]:
+    """Stage name -> (21, 2) keypoints of that stage's snapshot through its camera."""
+    return {
+        st.name: _reprojected(result.hand_model, st.hand_params, st.camera, st.metric_scale)
+        for st in result.stages
+        if st.hand_params is not None and st.camera is not None
+    }
+
+
+def _reprojected(hand_model: str, params, camera, metric_scale: float) -> np.ndarray:
     import torch
 
     from easyhoi.hand import load_hand_model
 
-    model = load_hand_model(result.hand_model, dtype=torch.float64)
+    model = load_hand_model(hand_model, dtype=torch.float64)
     with torch.no_grad():
-        k = model(result.hand_params.to(dtype=torch.float64)).keypoints[0] / result.metric_scale
-        uv, _ = result.camera.detach().to(torch.float64).project(k)
+        k = model(params.to(dtype=torch.float64)).keypoints[0] / metric_scale
+        uv, _ = camera.detach().to(torch.float64).project(k)
     return uv.numpy()
 
 
@@ -125,6 +140,10 @@ def run_photo(
     if det is not None:
         row["detector"] = errors(np.asarray(det), ref, visible)
     row["final"] = errors(final_keypoints(rec.result), ref, visible)
+    row["stages_px"] = {
+        name: errors(uv, ref, visible)["mean_px"]
+        for name, uv in stage_keypoints(rec.result).items()
+    }
     row["hand_change"] = {
         k: v for k, v in rec.result.hand_change.items() if k.startswith(("mean", "max"))
     }
@@ -183,7 +202,9 @@ def _line(row: dict) -> str:
         return f"{row['photo']}: {row['error']}"
     d, f = row.get("detector"), row["final"]
     det = f"detector {d['mean_px']:.2f} px PCK@0.05 {d['pck05']:.2f}" if d else "detector n/a"
+    stages = " -> ".join(f"{v:.2f}" for v in row.get("stages_px", {}).values())
     return (f"{row['photo']}: {det}; final {f['mean_px']:.2f} px PCK@0.05 {f['pck05']:.2f}; "
+            f"stages {stages} px; "
             f"moved {row['hand_change'].get('mean_px', float('nan')):.2f} px, "
             f"{row['hand_change'].get('mean_cm', float('nan')):.2f} cm")  # fmt: skip
 

@@ -109,10 +109,11 @@ def test_refine_rerun_matches_optimize():
     inp = scene.to_hoi_input("hamer", seed=1)
     cfg = get_preset("fast").optim
     res = optimize(inp, cfg)
-    params = refine_from_contact(inp, res, cfg)
+    params, m = refine_from_contact(inp, res, cfg)
     for name in ("global_orient", "transl", "pose"):
         a, b = getattr(params, name), getattr(res.hand_params, name)
         np.testing.assert_array_equal(a.detach().numpy(), b.detach().numpy())
+    assert m == res.metric_scale
 
 
 def test_preset_quality_table_flags_fast_and_gt_against_paper():

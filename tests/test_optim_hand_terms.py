@@ -58,6 +58,38 @@ def test_keypoint_loss_is_robust_and_quadratic_near_zero():
     assert float(x.grad.abs().max()) < 1e-6  # the outlier barely pulls
 
 
+def test_keypoint_drift_loss_matches_naive_gradcheck_and_does_not_saturate():
+    from easyhoi.optim.hand_terms import keypoint_drift_loss
+
+    g = torch.Generator().manual_seed(1)
+    pred = torch.rand(21, 2, generator=g, dtype=torch.float64) * 100
+    target = pred + torch.randn(21, 2, generator=g, dtype=torch.float64) * 8
+    w = torch.rand(21, generator=g, dtype=torch.float64)
+    mean = [
+        sum(float(w[j]) * float(pred[j, c] - target[j, c]) for j in range(21)) / float(w.sum())
+        for c in range(2)
+    ]
+    naive = (mean[0] ** 2 + mean[1] ** 2) / (60.0 * 0.1) ** 2
+    got = keypoint_drift_loss(pred, target, 60.0, 0.1, w)
+    assert float(got) == pytest.approx(naive, rel=1e-12)
+    x = pred.clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda p: keypoint_drift_loss(p, target, 60.0, 0.1, w), (x,))
+    # a common shift: the robust term's quadratic regime near 0, but unbounded far off, where
+    # the robust term is flat
+    base = torch.zeros(21, 2, dtype=torch.float64)
+    for shift, ratio in ((0.6, 1.0), (60.0, None)):
+        moved = base + torch.tensor([shift, 0.0], dtype=torch.float64)
+        drift = float(keypoint_drift_loss(moved, base, 60.0, 0.1))
+        robust = float(keypoint_loss(moved, base, 60.0, 0.1))
+        assert drift == pytest.approx((shift / 6.0) ** 2, rel=1e-12)
+        if ratio is not None:
+            assert drift == pytest.approx(robust, rel=0.02)
+        else:
+            assert robust < 1.0 and drift == pytest.approx(100.0)
+    with pytest.raises(InvalidInputError):
+        keypoint_drift_loss(base, base, 60.0, 0.1, torch.zeros(21))
+
+
 def test_keypoint_loss_rejects_bad_arguments():
     t = torch.zeros(21, 2)
     with pytest.raises(InvalidInputError):
@@ -288,3 +320,43 @@ def test_hand_change_zero_for_unchanged_hand_and_counts_moves():
     assert ch["max_px"] < 1e-6 and ch["max_cm"] < 1e-6
     bent = type(est)(est.global_orient, est.transl, est.pose + 0.3, est.betas, est.side)
     assert hand_change(sc.model, inp, bent, cam, 1.0)["max_cm"] > 0.5
+
+
+def test_push_out_as_a_scale_keeps_the_projection_exactly():
+    """The push-out as a change of the metric scale frees the sunken hand and keeps its 21
+    keypoints' pixels (to rounding), where the translation along the centroid's ray moves them;
+    the refined hand then belongs to the new scale (fit_refine reports it)."""
+    from dataclasses import replace
+
+    from easyhoi.config import get_preset
+    from easyhoi.optim.refine import push_out
+    from easyhoi.optim.state import Scene
+    from easyhoi.testing.optim_scenes import make_scene
+
+    sc = make_scene("box")
+    cfg = replace(get_preset("fast").optim.refine, push_out_steps=6)
+    scene = Scene.from_input(sc.inp, sc.model, torch.float64)
+    cam = sc.gt_camera.to(torch.float64)
+    p = sc.gt_hand.to(dtype=torch.float64)
+    m = sc.gt_metric_scale
+    with torch.no_grad():
+        out = sc.model(p)
+        v, k = out.vertices[0] / m, out.keypoints[0] / m
+    eye = cam.center.double()
+    ray = v.mean(0) - eye
+    ray = ray / ray.norm()
+    shift = 0.12 * scene.extent * ray
+    sunk = replace(p, transl=p.transl + m * shift[None])
+    assert float(scene.sdf(v + shift, cfg.sdf_resolution).min()) < -0.025
+    factor, note = push_out(scene, sunk, m, cfg, cam, as_scale=True)
+    f = float(factor)
+    assert note["steps"] >= 1 and f != 1.0
+    assert note["scale_factor"] == pytest.approx(1.0 / f)
+    freed = eye + (v + shift - eye) * f
+    assert float(scene.sdf(freed, cfg.sdf_resolution).min()) > -0.01
+    uv0, _ = cam.project(k + shift)
+    uv1, _ = cam.project(eye + (k + shift - eye) * f)
+    assert float((uv1 - uv0).norm(dim=1).max()) < 1e-6
+    move, _ = push_out(scene, sunk, m, cfg, cam)
+    uv2, _ = cam.project(k + shift + move)
+    assert float((uv2 - uv0).norm(dim=1).max()) > 0.05

@@ -135,6 +135,10 @@ class CameraStageConfig:
     frame, e.g. a scan)."""
     optimise_focal: bool = True
     """Optimise fx and fy together with the 6-DoF pose (8 DoF); False keeps the focal fixed."""
+    square_pixels: bool = False
+    """One focal length for both image axes (fx = fy, 7 DoF): every photo's camera has square
+    pixels, and a stretched camera (fx != fy) distorts the hand's projection in a way no rigid
+    hand follows. False = the reference implementation's separate fx, fy (8 DoF)."""
 
     def __post_init__(self):
         _finite(self)
@@ -205,6 +209,9 @@ class ContactStageConfig:
     initial_competes: bool = False
     """The state the stage starts from competes for the best state (False = the paper's: only
     states from the first registration on)."""
+    rescan_range: float = 2.0
+    """The depth scans at the registrations try metric scales from 1 / rescan_range to
+    rescan_range times the current one (41 log-spaced factors; 2 = the placement's own scan)."""
     score_band: bool = False
     """The best-state score measures touching with the depth scan's contact-band term (the
     contact zones on the surface, scan_band) instead of the closest vertex's distance to it;
@@ -216,6 +223,10 @@ class ContactStageConfig:
         _non_negative(self, "max_iters", "stop_loss", "patience", "min_delta", "icp_iters")
         _non_negative(self, "icp_tolerance", "rotation_prior_weight", "scan_tie_margin")
         _non_negative(self, "scan_band")
+        if not self.rescan_range > 1.0:
+            raise InvalidInputError(
+                f"ContactStageConfig.rescan_range must be > 1, got {self.rescan_range}"
+            )
         _check_schedule(self)
         if any(r < 0 for r in self.register_at) or list(self.register_at) != sorted(
             set(self.register_at)
@@ -284,12 +295,20 @@ class RefineStageConfig:
     (HOIInput.meta["keypoints2d"]); 0 = off (the paper has no such term)."""
     keypoint_sigma: float = 0.05
     """Geman-McClure scale of the keypoint term, as a fraction of the hand's size in the photo."""
+    keypoint_drift_weight: float = 0.0
+    """Weight of the non-saturating term on the mean keypoint residual (the whole hand moved
+    off the detector's keypoints; optim.hand_terms.keypoint_drift_loss); used only with
+    keypoint_weight > 0. 0 = off."""
     rigid_first: bool = False
     """In the first phase of the schedule only the global pose moves (the fingers keep the
     estimator's articulation); False = the paper's joint optimisation."""
     push_out_steps: int = 0
-    """Before the gradient steps, move the penetrating hand rigidly out of the object along its
-    normal in up to this many steps (0 = off, the paper)."""
+    """Before the gradient steps, move the penetrating hand rigidly out of the object in up to
+    this many steps, along the camera rays (optim.refine.push_out; 0 = off, the paper)."""
+    push_out_scale: bool = False
+    """The push-out along the camera ray changes the metric scale (the hand's depth relative to
+    the object, its projection kept exactly) instead of translating the hand along the ray
+    through its centroid (which also changes its apparent size). Used with a camera only."""
     prior_weight: float = 0.0
     """Weight of the anatomical pose prior (joint limits, hinges, finger coupling); 0: off."""
 
@@ -297,6 +316,7 @@ class RefineStageConfig:
         _finite(self)
         _positive(self, "lr_global", "lr_pose", "sdf_resolution", "keypoint_sigma")
         _non_negative(self, "keypoint_weight", "prior_weight", "push_out_steps")
+        _non_negative(self, "keypoint_drift_weight")
         if self.lr_transl is not None and not self.lr_transl > 0:
             raise InvalidInputError(
                 f"RefineStageConfig.lr_transl must be > 0 or None, got {self.lr_transl}"
@@ -474,6 +494,9 @@ _FAST = EasyHOIConfig(
             # object in any canonical frame, and a bad start rotation is a local minimum
             init_from_masks=True,
             init_rotations="cube",
+            # a photo's pixels are square: one focal for both axes (a stretched camera distorts
+            # the hand's projection, which no rigid hand follows)
+            square_pixels=True,
         ),
         contact=ContactStageConfig(
             max_iters=150,
@@ -488,6 +511,10 @@ _FAST = EasyHOIConfig(
             # place the hand at the depth where its contact zones lie on the object's surface,
             # not where a single vertex first touches it: a grasp touches with pads and palm
             scan_band=0.02,
+            # the placement scanned depths from 1/2 to 2 times its first guess; the scans at the
+            # registrations only adjust that depth to the moves of the mask fit (a second wide
+            # scan jumped to another touching depth, e.g. the palm instead of the pinch)
+            rescan_range=1.15,
             # a registration moves the hand only along the camera rays: the photo fixes where
             # the hand is in the image, so the in-plane part of the ICP (biased where the two
             # surfaces differ in shape) would only pull the hand off its silhouette
@@ -531,10 +558,16 @@ _FAST = EasyHOIConfig(
             # cannot bend fingers where the photo or anatomy says no
             keypoint_weight=20.0,
             keypoint_sigma=0.1,
+            # ... and the hand as a whole may not leave them (penetration pushing the hand
+            # across the photo: the robust term is flat once every joint is off)
+            keypoint_drift_weight=20.0,
             prior_weight=10.0,
             reg_weight=2.0,
             # penetration is first resolved by moving the hand as a whole
             push_out_steps=5,
+            # ... along the camera rays, as a change of the metric scale: the hand keeps its
+            # projection exactly, only its depth relative to the object gives
+            push_out_scale=True,
             rigid_first=True,
         ),
         # half the paper's render size: every render costs in proportion to its pixels

@@ -4,7 +4,8 @@ Parameterisation (8 DoF, as the reference implementation): around an initial cam
 ``(f0, R0, t0)`` the stage optimizes
 
 - ``log_f`` (2,): ``fx = f0 exp(log_f[0])``, ``fy = f0 exp(log_f[1])`` (principal point fixed at
-  the image centre); a step of lr = 1e-2 changes the focal by 1 %;
+  the image centre); a step of lr = 1e-2 changes the focal by 1 %; with ``square_pixels`` one
+  shared value (fx = fy, 7 DoF);
 - ``r`` (3,): axis-angle residual, ``R = Rot(r) R0``, applied about the OBJECT's centre ``c`` so
   a rotation step does not swing the object across the image;
 - ``delta`` (3,): translation residual in units of the object's extent,
@@ -198,12 +199,20 @@ def initial_camera(
 class _CameraParams:
     """Residual parameters around an initial camera (see the module docstring)."""
 
-    def __init__(self, cam0: Camera, center: torch.Tensor, extent: float, optimise_focal: bool):
+    def __init__(
+        self,
+        cam0: Camera,
+        center: torch.Tensor,
+        extent: float,
+        optimise_focal: bool,
+        square_pixels: bool = False,
+    ):
         dt, dev = cam0.K.dtype, cam0.K.device
         self.cam0 = cam0.detach()
         self.center = center.to(dt)
         self.extent = float(extent)
-        self.log_f = torch.zeros(2, dtype=dt, device=dev, requires_grad=optimise_focal)
+        n_focal = 1 if square_pixels else 2  # one log-focal shared by both axes, or one each
+        self.log_f = torch.zeros(n_focal, dtype=dt, device=dev, requires_grad=optimise_focal)
         self.r = torch.zeros(3, dtype=dt, device=dev, requires_grad=True)
         self.delta = torch.zeros(3, dtype=dt, device=dev, requires_grad=True)
 
@@ -213,7 +222,7 @@ class _CameraParams:
     def camera(self) -> Camera:
         c0 = self.cam0
         f0 = c0.K.diagonal()[:2]
-        df = f0 * torch.expm1(self.log_f)
+        df = f0 * torch.expm1(self.log_f.expand(2))
         K = c0.K + torch.diag(torch.cat([df, df.new_zeros(1)]))
         R = axis_angle_to_matrix(self.r) @ c0.R
         t = c0.t + c0.R @ self.center - R @ self.center + self.extent * self.delta
@@ -251,7 +260,7 @@ def fit_camera(
             iterations, stop reason, and ``extra`` with the final hard IoU at the last resolution.
     """
     start = time.perf_counter()
-    params = _CameraParams(cam0, scene.center, scene.extent, cfg.optimise_focal)
+    params = _CameraParams(cam0, scene.center, scene.extent, cfg.optimise_focal, cfg.square_pixels)
     loop = StageLoop("camera", cfg.max_iters, optim_cfg.history_every, progress)
     opt = Adam(params.tensors(), lr=cfg.lr)
 

@@ -176,6 +176,7 @@ def scan_scale(
     render_size: int,
     tie_margin: float = 0.0,
     band: float = 0.0,
+    factors: tuple[float, ...] = SCALE_SCAN,
 ) -> tuple[float, float]:
     """1D search of the metric scale along the camera rays around ``m0``.
 
@@ -198,6 +199,7 @@ def scan_scale(
         camera: object camera (full image size).
         tie_margin: float, score difference that counts as a tie (0: the best score).
         band: float, width of the contact band (normalised object units; 0: closest vertex).
+        factors: the candidate factors of ``m0`` (default :data:`SCALE_SCAN`).
 
     Returns:
         (m, score) of the chosen candidate.
@@ -209,7 +211,7 @@ def scan_scale(
     R, t = cam.R, cam.t
     scored = []
     with torch.no_grad():
-        for f in SCALE_SCAN:
+        for f in factors:
             m = m0 * float(f)
             v = (verts_cam.to(scene.dtype) / m - t) @ R
             zh = depth_map(v, scene.hand_model.faces, cam)
@@ -320,6 +322,8 @@ def fit_contact(
     registrations: list[dict] = []
     # the touching part of the score: the scan's contact band, or the closest vertex
     score_band = cfg.scan_band if cfg.score_band else 0.0
+    r = cfg.rescan_range
+    rescan = tuple(float(x) for x in np.geomspace(1.0 / r, r, len(SCALE_SCAN)))
 
     def begin(frac):
         h, w = scene.render_size(frac, optim_cfg.render_size)
@@ -333,7 +337,7 @@ def fit_contact(
             m_before = state.m
             state.m, _ = scan_scale(
                 scene, state.verts_cam(), state.camera, state.m, sdf_res,
-                optim_cfg.render_size, cfg.scan_tie_margin, cfg.scan_band,
+                optim_cfg.render_size, cfg.scan_tie_margin, cfg.scan_band, rescan,
             )  # fmt: skip
             v = state.verts_obj()
             _, vis, _ = scene.hand_silhouettes(v, cam)

@@ -6,6 +6,10 @@
   saturates at 1, so one wrong detection (a finger hidden behind the object and guessed by the
   detector) pulls with a bounded force while the consistent joints hold the hand in place.
   Per-joint detector confidences weight the joints.
+- :func:`keypoint_drift_loss`: the confidence-weighted MEAN residual of the keypoints, squared
+  (no saturation). The robust term forgives single joints; the hand as a whole cannot be an
+  outlier, and a hand pushed across the photo by other terms (penetration) must keep paying for
+  it: once every joint is farther than the Geman-McClure scale, the robust term is flat.
 - :func:`pose_prior_loss`: how fingers bend. Each joint's axis-angle rotation is split into its
   flexion (the component along the joint's flexion axis, :func:`easyhoi.hand.regions.flexion_axes`)
   and the rest (abduction and twist). Three squared hinge penalties, zero inside the range every
@@ -38,6 +42,7 @@ __all__ = [
     "COUPLING_TOLERANCE",
     "FLEXION_LIMITS",
     "HINGE_TOLERANCE",
+    "keypoint_drift_loss",
     "keypoint_loss",
     "pose_prior_loss",
     "prior_tables",
@@ -175,3 +180,36 @@ def keypoint_loss(
     r2 = ((p - q) ** 2).sum(-1) / scale**2
     rho = r2 / (r2 + sigma**2)
     return ((rho * w).sum(1) / w.sum()).mean()
+
+
+def keypoint_drift_loss(
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    scale: float,
+    sigma: float,
+    weights: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Whole-hand drift from the detected keypoints: ``|sum_j w_j (p_j - q_j) / sum_j w_j|^2 /
+    (scale sigma)^2`` (arguments as :func:`keypoint_loss`). Equals :func:`keypoint_loss`'s
+    quadratic regime for a common shift of every joint, but does not saturate.
+
+    Returns:
+        () tensor >= 0: the batch mean.
+    """
+    if not (scale > 0 and sigma > 0 and math.isfinite(scale) and math.isfinite(sigma)):
+        raise InvalidInputError(
+            f"keypoint_drift_loss: scale and sigma must be > 0 ({scale}, {sigma})"
+        )
+    p = pred.reshape(-1, *pred.shape[-2:])
+    q = torch.as_tensor(target, dtype=p.dtype, device=p.device).detach()
+    if q.shape != p.shape[1:]:
+        raise InvalidInputError(
+            f"keypoint_drift_loss: target {tuple(q.shape)} does not match pred {tuple(p.shape[1:])}"
+        )
+    w = torch.ones(q.shape[0], dtype=p.dtype, device=p.device)
+    if weights is not None:
+        w = weights.to(device=p.device, dtype=p.dtype)
+    if not float(w.sum()) > 0:
+        raise InvalidInputError("keypoint_drift_loss: the joint weights sum to 0")
+    mean = ((p - q) * w[:, None]).sum(1) / w.sum()  # (B, 2)
+    return ((mean**2).sum(-1) / (scale * sigma) ** 2).mean()

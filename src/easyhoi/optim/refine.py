@@ -5,7 +5,8 @@ Variables (metric object frame, see :mod:`easyhoi.optim.state`): ``global_orient
 object units (``L`` the object's largest side in object units; Adam, ``lr_transl`` or
 ``lr_global``: a step of 1e-4 moves the hand by 0.01 % of the object's size, whatever the metric
 scale, as the paper's normalised object frame) and the 45 articulation parameters
-(``lr_pose``); the shape and the metric scale ``m`` stay fixed. Object-frame vertices are
+(``lr_pose``); the shape and the metric scale ``m`` stay fixed during the gradient steps (the
+push-out before them may change ``m``, see :func:`push_out`). Object-frame vertices are
 ``model(params).vertices / m``. The loss is::
 
     L = hand_mask_weight   * soft_iou(visible hand, M_h)
@@ -37,7 +38,7 @@ from easyhoi.config import OptimConfig, RefineStageConfig
 from easyhoi.hand.regions import DIGIT_JOINTS
 from easyhoi.hoi import StageResult
 from easyhoi.optim.adam import Adam
-from easyhoi.optim.hand_terms import keypoint_loss, pose_prior_loss
+from easyhoi.optim.hand_terms import keypoint_drift_loss, keypoint_loss, pose_prior_loss
 from easyhoi.optim.loop import StageLoop, restore, run_phases, snapshot
 from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
 from easyhoi.optim.state import Scene, hard_iou
@@ -83,7 +84,8 @@ def refine_terms(
         masks: dict from :meth:`Scene.masks_at` at that resolution.
 
     Returns:
-        dict of str -> () tensor: the unweighted terms present (``keypoints``, ``prior``, ``mask``,
+        dict of str -> () tensor: the unweighted terms present (``keypoints``,
+            ``keypoint_drift``, ``prior``, ``mask``,
         ``penetration``, ``contact``, ``reg``) and ``total`` (weighted sum).
     """
     out = scene.hand_model(params)
@@ -97,6 +99,11 @@ def refine_terms(
         terms["keypoints"] = keypoint_loss(uv, kp.points, kp.size, cfg.keypoint_sigma,
                                            kp.confidence)  # fmt: skip
         total = total + cfg.keypoint_weight * terms["keypoints"]
+        if cfg.keypoint_drift_weight > 0:
+            terms["keypoint_drift"] = keypoint_drift_loss(
+                uv, kp.points, kp.size, cfg.keypoint_sigma, kp.confidence
+            )
+            total = total + cfg.keypoint_drift_weight * terms["keypoint_drift"]
     if cfg.prior_weight > 0:
         # the axes are the right model's: a left hand's articulation is mirrored first
         sign = [1.0, -1.0, -1.0] if params.side == "left" else [1.0] * 3
@@ -148,6 +155,7 @@ def push_out(
     metric_scale: float,
     cfg: RefineStageConfig,
     camera: Camera | None = None,
+    as_scale: bool = False,
 ) -> tuple[torch.Tensor, dict]:
     """Rigid move that takes a penetrating hand out of the object.
 
@@ -164,21 +172,36 @@ def push_out(
     normalised units in all. The articulation is untouched, so a grasp that sank in as a whole
     (a depth or scale error) comes out without bending fingers.
 
+    With ``camera`` and ``as_scale`` the move along the rays is a change of the metric scale
+    instead of a translation: the object-unit hand is scaled about the camera centre by a
+    factor ``k`` (``v -> eye + k (v - eye)``, the metric scale becomes ``m / k``), which is the
+    same hand in the camera's metric frame: its projection is kept exactly, where a translation
+    along the one ray through the centroid also changes the hand's apparent size. The step at
+    the centroid is the same as for the translation.
+
     Returns:
-        (3,) translation in object units and a JSON-ready note (steps, distance in normalised
-        units).
+        (3,) translation in object units (``as_scale``: the () factor ``k``, 1 = no move) and a
+        JSON-ready note (steps, distance in normalised units).
     """
     with torch.no_grad():
         verts = scene.hand_model(params).vertices[0] / metric_scale
-    ray = None
+    ray = eye = None
     if camera is not None:
         eye = camera.center.detach().to(verts.dtype)
         ray = verts.mean(0) - eye
+        dist = float(ray.norm())  # the centroid's distance from the camera, object units
         ray = ray / ray.norm().clamp_min(1e-12)
+    scale = as_scale and ray is not None
     total = torch.zeros(3, dtype=verts.dtype, device=verts.device)
     steps, last = 0, None
+
+    def moved(t: torch.Tensor) -> torch.Tensor:
+        if scale:  # t = the centroid's move along its ray: scale about the camera centre
+            return eye + (verts - eye) * (1.0 + float(t @ ray) / dist)
+        return verts + t
+
     for _ in range(cfg.push_out_steps + 1):
-        v = (verts + total).detach().requires_grad_(True)
+        v = moved(total).detach().requires_grad_(True)
         d = scene.sdf(v, cfg.sdf_resolution)
         inside = d < cfg.penetration_threshold
         sunk = float((-d[inside]).detach().sum())
@@ -207,6 +230,10 @@ def push_out(
             total = total * (PUSH_OUT_MAX * scene.extent / float(total.norm()))
             break
     note = {"steps": steps, "distance": float(total.norm()) / scene.extent}
+    if scale:
+        k = 1.0 + float(total @ ray) / dist
+        note["scale_factor"] = 1.0 / k
+        return torch.tensor(k, dtype=verts.dtype, device=verts.device), note
     return total.detach(), note
 
 
@@ -228,7 +255,8 @@ def fit_refine(
 
     Returns:
         params: HandParams, the refined hand (metric object frame, detached).
-        result: StageResult with the history of every term.
+        result: StageResult with the history of every term; its ``metric_scale`` is the one
+            ``params`` belong to (changed by the push-out with ``push_out_scale``).
     """
     start = time.perf_counter()
     dt = scene.dtype
@@ -236,8 +264,20 @@ def fit_refine(
     theta0 = (p0.pose if theta0 is None else theta0.to(dt)).detach().clone()
     go = p0.global_orient.clone().requires_grad_(cfg.optimise_global)
     camera = camera.detach().to(dt)
-    push = push_out(scene, p0, metric_scale, cfg, camera) if cfg.push_out_steps > 0 else None
-    tr0 = p0.transl.clone() if push is None else p0.transl + float(metric_scale) * push[0]
+    push = None
+    if cfg.push_out_steps > 0:
+        push = push_out(scene, p0, metric_scale, cfg, camera, as_scale=cfg.push_out_scale)
+    if push is None:
+        tr0 = p0.transl.clone()
+    elif cfg.push_out_scale:
+        # the same metric hand in the camera, the object's metric scale m / k: in the metric
+        # object frame the hand moves by (m' - m) eye (eye: the camera centre, object units)
+        m_new = float(metric_scale) / float(push[0])
+        eye = camera.center.detach().to(dt)
+        tr0 = p0.transl + (m_new - float(metric_scale)) * eye[None]
+        metric_scale = m_new
+    else:
+        tr0 = p0.transl + float(metric_scale) * push[0]
     unit = float(scene.extent) * float(metric_scale)  # metres per normalised object unit
     delta = torch.zeros_like(tr0).requires_grad_(cfg.optimise_global)
     pose = p0.pose.clone().requires_grad_(cfg.optimise_pose)

@@ -254,6 +254,7 @@ def _run_stages(inp: HOIInput, scene: Scene, config: OptimConfig, progress, timi
                                      progress=progress)  # fmt: skip
         except InvalidInputError as exc:  # e.g. NaN vertices reaching the renderer
             raise _stage_error("refine", exc) from exc
+        m = float(res.metric_scale)  # the push-out may move the hand's depth as a scale
         stages.append(res)
         timings["refine"] = res.seconds
     if not np.isfinite(m) or m <= 0:

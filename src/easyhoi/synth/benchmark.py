@@ -166,10 +166,8 @@ def evaluate_scene(
         if key is None or not settings.loss_ablation:
             continue
         cfg = with_overrides(fast, {f"refine.{key}": 0.0})
-        params = refine_from_contact(inp, res, cfg, opt_scene)
-        abl[name] = evaluate_hand(
-            truth, params, float(contact.metric_scale), contact.camera, steps, cone=cone
-        )
+        params, m_abl = refine_from_contact(inp, res, cfg, opt_scene)
+        abl[name] = evaluate_hand(truth, params, m_abl, contact.camera, steps, cone=cone)
     row["loss_ablation"] = abl
     # the same scene with the GT object shape (same canonical frame, no deformation)
     gt_level = replace(level, object=replace(level.object, shape="oracle", amplitude=0.0))

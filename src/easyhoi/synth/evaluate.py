@@ -242,7 +242,8 @@ def gt_hand_state(scene, inp):
 def refine_from_contact(inp, result, cfg: OptimConfig, opt_scene=None):
     """Re-run stage 3 from ``result``'s contact snapshot with ``cfg`` (seeded like optimize).
 
-    Returns the refined :class:`HandParams` (metric object frame; metric scale unchanged).
+    Returns the refined :class:`HandParams` (metric object frame) and the metric scale they
+    belong to (the push-out may change it).
     """
     from easyhoi.optim.refine import fit_refine
     from easyhoi.optim.state import Scene as OptScene
@@ -255,7 +256,7 @@ def refine_from_contact(inp, result, cfg: OptimConfig, opt_scene=None):
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(cfg.seed)
         theta0 = inp.hand_params.pose.to(opt_scene.dtype)
-        params, _ = fit_refine(
+        params, res = fit_refine(
             opt_scene,
             contact.hand_params,
             float(contact.metric_scale),
@@ -264,7 +265,7 @@ def refine_from_contact(inp, result, cfg: OptimConfig, opt_scene=None):
             cfg,
             theta0=theta0,
         )
-    return params
+    return params, float(res.metric_scale)
 
 
 def _object_quality(inp, m: float, truth: _Truth, gt_mesh, n: int) -> dict:
