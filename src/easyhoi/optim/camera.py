@@ -43,6 +43,7 @@ import numpy as np
 import torch
 
 from easyhoi.config import CameraStageConfig, OptimConfig
+from easyhoi.errors import OptimizationError
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import StageResult
 from easyhoi.optim.adam import Adam
@@ -72,6 +73,10 @@ CANDIDATE_YAWS = (0.0, 90.0, 180.0, 270.0)
 #: A later candidate rotation replaces the best one only if its soft IoU loss is lower by more
 #: than this: near-ties (a cylinder turned about its axis) keep the earlier, canonical view.
 CANDIDATE_MARGIN = 0.02
+
+# A focal scaled by more than e^20 (about 5e8) is a diverged step, not a camera: the cameras the
+# stage builds are not re-validated per iteration, so this bound keeps divergence a named error.
+MAX_LOG_FOCAL = 20.0
 
 #: Fixed-point iterations of :func:`fit_box`.
 BOX_FIT_ITERS = 8
@@ -221,6 +226,7 @@ class _CameraParams:
 
     def camera(self) -> Camera:
         c0 = self.cam0
+        self._check_finite()
         f0 = c0.K.diagonal()[:2]
         df = f0 * torch.expm1(self.log_f.expand(2))
         K = c0.K + torch.diag(torch.cat([df, df.new_zeros(1)]))
@@ -230,6 +236,16 @@ class _CameraParams:
         # camera), so not checked again every iteration; non-finite values surface as a
         # non-finite loss, which the stage loop reports
         return Camera._trusted(K, R, t, c0.width, c0.height)
+
+    def _check_finite(self) -> None:
+        """Raise :class:`OptimizationError` when a step has left the space of cameras."""
+        lf = self.log_f.detach()
+        ok = bool(torch.isfinite(self.r.detach()).all() & torch.isfinite(self.delta.detach()).all())
+        if not ok or not bool((lf.abs() <= MAX_LOG_FOCAL).all()):
+            raise OptimizationError(
+                "stage 'camera': the camera diverged (focal scale exp("
+                f"{lf.tolist()}), rotation/translation finite: {ok}); try a smaller learning rate"
+            )
 
     def state(self) -> tuple[torch.Tensor, ...]:
         return snapshot((self.log_f, self.r, self.delta))
