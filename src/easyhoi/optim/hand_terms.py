@@ -164,19 +164,7 @@ def keypoint_loss(
     Returns:
         () tensor in [0, 1): the batch mean.
     """
-    if not (scale > 0 and sigma > 0 and math.isfinite(scale) and math.isfinite(sigma)):
-        raise InvalidInputError(f"keypoint_loss: scale and sigma must be > 0 ({scale}, {sigma})")
-    p = pred.reshape(-1, *pred.shape[-2:])
-    q = torch.as_tensor(target, dtype=p.dtype, device=p.device).detach()
-    if q.shape != p.shape[1:]:
-        raise InvalidInputError(
-            f"keypoint_loss: target {tuple(q.shape)} does not match pred {tuple(p.shape[1:])}"
-        )
-    w = torch.ones(q.shape[0], dtype=p.dtype, device=p.device)
-    if weights is not None:
-        w = weights.to(device=p.device, dtype=p.dtype)
-    if not float(w.sum()) > 0:
-        raise InvalidInputError("keypoint_loss: the joint weights sum to 0")
+    p, q, w = _keypoint_inputs("keypoint_loss", pred, target, scale, sigma, weights)
     r2 = ((p - q) ** 2).sum(-1) / scale**2
     rho = r2 / (r2 + sigma**2)
     return ((rho * w).sum(1) / w.sum()).mean()
@@ -196,20 +184,24 @@ def keypoint_drift_loss(
     Returns:
         () tensor >= 0: the batch mean.
     """
+    p, q, w = _keypoint_inputs("keypoint_drift_loss", pred, target, scale, sigma, weights)
+    mean = ((p - q) * w[:, None]).sum(1) / w.sum()  # (B, 2)
+    return ((mean**2).sum(-1) / (scale * sigma) ** 2).mean()
+
+
+def _keypoint_inputs(name: str, pred, target, scale: float, sigma: float, weights):
+    """Checked ``(pred (B, J, 2), target (J, 2), weights (J,))`` of the keypoint terms."""
     if not (scale > 0 and sigma > 0 and math.isfinite(scale) and math.isfinite(sigma)):
-        raise InvalidInputError(
-            f"keypoint_drift_loss: scale and sigma must be > 0 ({scale}, {sigma})"
-        )
+        raise InvalidInputError(f"{name}: scale and sigma must be > 0 ({scale}, {sigma})")
     p = pred.reshape(-1, *pred.shape[-2:])
     q = torch.as_tensor(target, dtype=p.dtype, device=p.device).detach()
     if q.shape != p.shape[1:]:
         raise InvalidInputError(
-            f"keypoint_drift_loss: target {tuple(q.shape)} does not match pred {tuple(p.shape[1:])}"
+            f"{name}: target {tuple(q.shape)} does not match pred {tuple(p.shape[1:])}"
         )
     w = torch.ones(q.shape[0], dtype=p.dtype, device=p.device)
     if weights is not None:
         w = weights.to(device=p.device, dtype=p.dtype)
     if not float(w.sum()) > 0:
-        raise InvalidInputError("keypoint_drift_loss: the joint weights sum to 0")
-    mean = ((p - q) * w[:, None]).sum(1) / w.sum()  # (B, 2)
-    return ((mean**2).sum(-1) / (scale * sigma) ** 2).mean()
+        raise InvalidInputError(f"{name}: the joint weights sum to 0")
+    return p, q, w

@@ -110,17 +110,7 @@ def revolution_mesh(c, a, s, r, n_segments: int = 48) -> tuple[np.ndarray, np.nd
     verts = np.concatenate([ring_uv, ring_z[..., None]], axis=-1).reshape(-1, 3)
     ends = np.array([[*(c + s[0] * a), 0.0], [*(c + s[-1] * a), 0.0]])
     verts = np.concatenate([verts, ends])
-    idx = np.arange(K * M).reshape(K, M)
-    i0, i1 = idx[:-1], idx[1:]
-    j0, j1 = i0, np.roll(i0, -1, axis=1)
-    k0, k1 = i1, np.roll(i1, -1, axis=1)
-    quads = np.concatenate(
-        [np.stack([j0, k0, j1], -1).reshape(-1, 3), np.stack([j1, k0, k1], -1).reshape(-1, 3)]
-    )
-    first, last = K * M, K * M + 1
-    cap0 = np.stack([np.full(M, first), idx[0], np.roll(idx[0], -1)], -1)
-    cap1 = np.stack([np.full(M, last), np.roll(idx[-1], -1), idx[-1]], -1)
-    return verts, np.concatenate([quads, cap0, cap1]).astype(np.int64)
+    return verts, _ring_faces(K, M)
 
 
 def symmetry(mask: np.ndarray, n_rings: int = 64) -> dict:
@@ -172,17 +162,7 @@ def tilted_revolution_mesh(c, a, s, r, tilt: float, n_segments: int = 48):
     ring = r[:, None, None] * (np.cos(th)[None, :, None] * n3 + np.sin(th)[None, :, None] * m3)
     verts = (centre[:, None, :] + ring).reshape(-1, 3)
     verts = np.concatenate([verts, centre[[0, -1]]])
-    idx = np.arange(K * M).reshape(K, M)
-    i0, i1 = idx[:-1], idx[1:]
-    j0, j1 = i0, np.roll(i0, -1, axis=1)
-    k0, k1 = i1, np.roll(i1, -1, axis=1)
-    quads = np.concatenate(
-        [np.stack([j0, k0, j1], -1).reshape(-1, 3), np.stack([j1, k0, k1], -1).reshape(-1, 3)]
-    )
-    first, last = K * M, K * M + 1
-    cap0 = np.stack([np.full(M, first), idx[0], np.roll(idx[0], -1)], -1)
-    cap1 = np.stack([np.full(M, last), np.roll(idx[-1], -1), idx[-1]], -1)
-    return verts, np.concatenate([quads, cap0, cap1]).astype(np.int64)
+    return verts, _ring_faces(K, M)
 
 
 def end_centre(s: np.ndarray, r: np.ndarray, k: float, from_start: bool) -> float:
@@ -275,3 +255,19 @@ def fit(wf: WorkFrame, n_rings: int = 48, n_segments: int = 40) -> Hypothesis:
                 axis=[round(float(x), 6) for x in sym["axis"]], tilt_deg=tilt_deg,
                 rim_ratio=round(rim, 3))  # fmt: skip
     return Hypothesis("revolution", verts, faces, min(iou, sym["reflection_iou"]), True, info=info)
+
+
+def _ring_faces(K: int, M: int) -> np.ndarray:
+    """Faces of ``K`` rings of ``M`` vertices (ring-major) capped by two fans around the end
+    centres stored after them (vertex indices ``K M`` and ``K M + 1``)."""
+    idx = np.arange(K * M).reshape(K, M)
+    i0, i1 = idx[:-1], idx[1:]
+    j0, j1 = i0, np.roll(i0, -1, axis=1)
+    k0, k1 = i1, np.roll(i1, -1, axis=1)
+    quads = np.concatenate(
+        [np.stack([j0, k0, j1], -1).reshape(-1, 3), np.stack([j1, k0, k1], -1).reshape(-1, 3)]
+    )
+    first, last = K * M, K * M + 1
+    cap0 = np.stack([np.full(M, first), idx[0], np.roll(idx[0], -1)], -1)
+    cap1 = np.stack([np.full(M, last), np.roll(idx[-1], -1), idx[-1]], -1)
+    return np.concatenate([quads, cap0, cap1]).astype(np.int64)
