@@ -1,9 +1,10 @@
 """The cuboid's silhouette, computed only inside the hull's bounding box, equals the plain
-half-plane test over every pixel (boxes inside, across and outside the frame)."""
+half-plane test over every pixel (boxes inside, across and outside the frame); the fit's cached
+objective equals the weighted IoU of that silhouette bit for bit, so the fit is unchanged."""
 
 import numpy as np
 
-from easyhoi.perception.shapes import cuboid
+from easyhoi.perception.shapes import common, cuboid
 
 
 def _naive(x: np.ndarray, shape) -> np.ndarray:
@@ -38,3 +39,76 @@ def test_bounding_box_restriction_is_exact():
         n_in += bool(ref.any())
         n_empty += not ref.any()
     assert n_in > 100 and n_empty > 10  # both kinds were exercised
+
+
+def _reference_loss_value(x: np.ndarray, wf: common.WorkFrame) -> float:
+    """The objective's IoU as defined: the full silhouette, then the weighted IoU."""
+    return common.fit_iou(_naive(x, wf.mask.shape), wf)
+
+
+def _frames() -> list[common.WorkFrame]:
+    """Work frames of a tilted box behind a hand, an ellipse and a rotated thin bar."""
+    import cv2
+
+    frames = []
+    for i, (a, b, ang) in enumerate([(70, 40, 30), (55, 52, 0), (90, 9, -65)]):
+        m = np.zeros((200, 220), np.uint8)
+        cv2.ellipse(m, (110, 100), (a, b), ang, 0, 360, 1, -1)
+        if i == 0:  # a box outline instead: a hexagon
+            m[:] = 0
+            x = np.array([110.0, 100.0, 0.5, -0.4, 0.3, np.log(50), np.log(30), np.log(18)])
+            hull = cv2.convexHull(np.round(cuboid._corners(x)[:, :2]).astype(np.int32))
+            cv2.fillConvexPoly(m, hull, 1)
+        m = m.astype(bool)
+        occ = np.zeros_like(m)
+        occ[90:150, 40:190] = True
+        img = np.random.default_rng(i).integers(0, 255, (*m.shape, 3), dtype=np.uint8)
+        frames.append(common.work_frame(m, m & ~occ, occ, img))
+    return frames
+
+
+def test_objective_equals_fit_iou_of_the_silhouette_bit_for_bit():
+    rng = np.random.default_rng(5)
+    for wf in _frames():
+        assert set(np.unique(wf.weight)) == {0.0, 0.5, 1.0}  # all three kinds of pixel
+        objective = cuboid._SilhouetteIoU(wf)
+        assert objective.exact
+        values = []
+        for _ in range(150):
+            x = np.zeros(8)
+            x[0:2] = rng.uniform(-30, 126, 2)
+            x[2:5] = rng.normal(0, 1, 3)
+            x[5:8] = np.log(rng.uniform(0.3, 60, 3))
+            got = objective(x)
+            assert got == _reference_loss_value(x, wf)  # exact equality, not approx
+            values.append(got)
+        assert max(values) > 0.2 and min(values) == 0.0  # overlapping and disjoint boxes
+
+
+def test_objective_with_other_weights_takes_the_plain_path():
+    wf = _frames()[1]
+    wf.weight = wf.weight * 0.3  # not multiples of 1/4: sums would depend on their order
+    objective = cuboid._SilhouetteIoU(wf)
+    assert not objective.exact
+    x = np.array([48.0, 48.0, 0.2, 0.1, 0.0, np.log(30), np.log(20), np.log(10)])
+    assert objective(x) == _reference_loss_value(x, wf)
+
+
+def test_fit_takes_the_same_path_as_the_plain_objective(monkeypatch):
+    """The whole fit (Nelder-Mead from five starts) with the cached objective and with the
+    plain one give the same box bit for bit."""
+    frames = _frames()
+    fast = [cuboid.fit(wf, depth=d) for wf, d in zip(frames, (None, 14.0, None), strict=True)]
+
+    class Plain:
+        def __init__(self, wf):
+            self.wf = wf
+
+        def __call__(self, x):
+            return _reference_loss_value(x, self.wf)
+
+    monkeypatch.setattr(cuboid, "_SilhouetteIoU", Plain)
+    plain = [cuboid.fit(wf, depth=d) for wf, d in zip(frames, (None, 14.0, None), strict=True)]
+    for a, b in zip(fast, plain, strict=True):
+        np.testing.assert_array_equal(a.verts, b.verts)
+        assert a.iou == b.iou and a.info == b.info

@@ -125,9 +125,10 @@ def rasterize(uv: np.ndarray, faces: np.ndarray, shape: tuple[int, int]) -> np.n
 
     Drawn at :data:`SUPERSAMPLE` x the resolution and area-reduced (a pixel is in when at least
     half of it is covered): polygon filling includes every pixel an edge touches, which would
-    otherwise grow each outline by half a pixel.
+    otherwise grow each outline by half a pixel. The triangles go to :func:`polygons_mask` as
+    one (F, 3, 2) array (no per-face Python objects).
     """
-    return polygons_mask([uv[f] for f in faces], shape)
+    return polygons_mask(np.asarray(uv)[np.asarray(faces, dtype=np.intp)], shape)
 
 
 def polygons_mask(polys, shape: tuple[int, int]) -> np.ndarray:
