@@ -112,3 +112,16 @@ def test_fit_takes_the_same_path_as_the_plain_objective(monkeypatch):
     for a, b in zip(fast, plain, strict=True):
         np.testing.assert_array_equal(a.verts, b.verts)
         assert a.iou == b.iou and a.info == b.info
+
+
+def test_rotation_matrix_equals_scipy_rotation():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(11)
+    for i in range(2000):
+        rv = rng.normal(0, 1, 3) * 10 ** rng.uniform(-9, 0.7)
+        if i % 5 == 0:
+            rv[rng.integers(3)] = 0.0
+        want = Rotation.from_rotvec(rv).as_matrix()
+        np.testing.assert_array_equal(cuboid._rotvec_matrix(rv), want)
+    np.testing.assert_array_equal(cuboid._rotvec_matrix(np.zeros(3)), np.eye(3))

@@ -39,8 +39,40 @@ _STEPS = np.array([2.0, 2.0, 0.3, 0.3, 0.3, 0.15, 0.15, 0.3])
 PRIOR_DEPTH_RATIO = 0.5
 
 
+def _rotvec_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """``Rotation.from_rotvec(rotvec).as_matrix()`` for one float64 (3,) rotation vector.
+
+    Calls the compiled kernels that ``Rotation`` itself dispatches to for NumPy input (same
+    arithmetic, so the same bits) without its per-call dispatch, which costs about three times
+    the kernels; ``Rotation`` itself where those kernels are missing or differ.
+    """
+    if _ROTATION_KERNELS is None:
+        return Rotation.from_rotvec(rotvec).as_matrix()
+    from_rotvec, as_matrix = _ROTATION_KERNELS
+    return as_matrix(from_rotvec(np.asarray(rotvec, np.float64))[None])[0]
+
+
+def _rotation_kernels():
+    """scipy's compiled (from_rotvec, as_matrix), when present and equal to ``Rotation``."""
+    try:
+        from scipy.spatial.transform import _rotation_cy
+
+        kernels = (_rotation_cy.from_rotvec, _rotation_cy.as_matrix)
+        for rv in ([0.0, 0.0, 0.0], [1e-9, -2e-9, 3e-10], [0.3, -1.2, 2.5], [3.0, 0.1, -0.2]):
+            rv = np.array(rv)
+            want = Rotation.from_rotvec(rv).as_matrix()
+            if not np.array_equal(kernels[1](kernels[0](rv)[None])[0], want):
+                return None
+        return kernels
+    except Exception:  # noqa: BLE001 - a private module: any change means the public path
+        return None
+
+
+_ROTATION_KERNELS = _rotation_kernels()
+
+
 def _corners(x: np.ndarray) -> np.ndarray:
-    R = Rotation.from_rotvec(x[2:5]).as_matrix()
+    R = _rotvec_matrix(x[2:5])
     return (_SIGNS * np.exp(x[5:8])) @ R.T + np.array([x[0], x[1], 0.0])
 
 
@@ -74,11 +106,19 @@ def _hull_pixels(x: np.ndarray, shape) -> tuple[slice, slice, np.ndarray] | None
     u = (np.arange(c0, c1) + 0.5)[None, :]
     nxt = np.concatenate([hull[1:], hull[:1]])
     area2 = np.sum(hull[:, 0] * nxt[:, 1] - nxt[:, 0] * hull[:, 1])
-    inside = np.ones((r1 - r0, c1 - c0), bool)
+    # inside: sign * cross >= 0 for every edge, sign = +-1 the hull's orientation; that is the
+    # smallest cross >= 0 (the largest <= 0 for sign -1): min/max return one of their inputs
+    # and propagate NaN, so the test is the same as edge by edge
+    positive = area2 >= 0
+    extreme = np.minimum if positive else np.maximum
+    acc = cross = None
     for (p0, p1), (q0, q1) in zip(hull.tolist(), nxt.tolist(), strict=True):
-        cross = (q0 - p0) * (v - p1) - (q1 - p1) * (u - p0)
-        # sign * cross >= 0 with sign = +-1 (negation is exact)
-        inside &= cross >= 0 if area2 >= 0 else cross <= 0
+        cross = np.subtract((q0 - p0) * (v - p1), (q1 - p1) * (u - p0), out=cross)
+        if acc is None:
+            acc, cross = cross, None
+        else:
+            extreme(acc, cross, out=acc)
+    inside = acc >= 0 if positive else acc <= 0
     return slice(r0, r1), slice(c0, c1), inside
 
 
