@@ -16,6 +16,8 @@ gradient inside the outline is ``edge_ratio``; ``edge_evidence = clip((ratio - 1
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 from scipy.optimize import minimize
@@ -96,10 +98,11 @@ def _hull_pixels(x: np.ndarray, shape) -> tuple[slice, slice, np.ndarray] | None
     """
     hull = cv2.convexHull(_corners(x)[:, :2].astype(np.float32)).reshape(-1, 2)
     hull = hull.astype(np.float64)
-    r0 = max(0, int(np.ceil(hull[:, 1].min() - 0.5)))
-    r1 = min(shape[0], int(np.floor(hull[:, 1].max() - 0.5)) + 1)
-    c0 = max(0, int(np.ceil(hull[:, 0].min() - 0.5)))
-    c1 = min(shape[1], int(np.floor(hull[:, 0].max() - 0.5)) + 1)
+    (umin, vmin), (umax, vmax) = hull.min(axis=0).tolist(), hull.max(axis=0).tolist()
+    r0 = max(0, math.ceil(vmin - 0.5))
+    r1 = min(shape[0], math.floor(vmax - 0.5) + 1)
+    c0 = max(0, math.ceil(umin - 0.5))
+    c1 = min(shape[1], math.floor(umax - 0.5) + 1)
     if r0 >= r1 or c0 >= c1:
         return None
     v = (np.arange(r0, r1) + 0.5)[:, None]
