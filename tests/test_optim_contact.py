@@ -48,9 +48,13 @@ def test_contact_stage_brings_hand_into_contact(kind, hand):
     meets it), the closest-vertex depth scan's model (scan_band 0); the contact-band scan of the
     fast preset, made for grasps whose contact zones lie on the object, is tested on a held
     synthetic grasp below. The start is 30 % off in depth, which the placement's wide scan
-    corrects in a run; here the stage's own scans must, so they are as wide (rescan_range 2)."""
+    corrects in a run; here the stage's own scans must, so they are as wide and as strict as
+    the placement's (rescan_range 2, no tie margin: the fast preset's re-scan margin is in
+    units of the contact-band term, not of the closest vertex's distance)."""
     sc, scene, cfg, cam = _setup(kind, hand, **NOISE)
-    cfg = replace(cfg, contact=replace(cfg.contact, scan_band=0.0, rescan_range=2.0))
+    cfg = replace(
+        cfg, contact=replace(cfg.contact, scan_band=0.0, rescan_range=2.0, rescan_tie_margin=0.0)
+    )
     p, m, _ = initial_hand(scene, sc.inp, cam, SIZE)
     st = ContactState(scene, p, cam, 0.7 * m)  # a start at the wrong depth (off the object)
     gt = _gt_verts(sc, hand)

@@ -212,6 +212,9 @@ class ContactStageConfig:
     rescan_range: float = 2.0
     """The depth scans at the registrations try metric scales from 1 / rescan_range to
     rescan_range times the current one (41 log-spaced factors; 2 = the placement's own scan)."""
+    rescan_tie_margin: float = 0.0
+    """Tie margin of the depth scans at the registrations (as scan_tie_margin, which the
+    placement's scan keeps): a re-scan moves the depth only for a score this much better."""
     score_band: bool = False
     """The best-state score measures touching with the depth scan's contact-band term (the
     contact zones on the surface, scan_band) instead of the closest vertex's distance to it;
@@ -222,7 +225,7 @@ class ContactStageConfig:
         _positive(self, "lr", "peel_layers")
         _non_negative(self, "max_iters", "stop_loss", "patience", "min_delta", "icp_iters")
         _non_negative(self, "icp_tolerance", "rotation_prior_weight", "scan_tie_margin")
-        _non_negative(self, "scan_band")
+        _non_negative(self, "scan_band", "rescan_tie_margin")
         if not self.rescan_range > 1.0:
             raise InvalidInputError(
                 f"ContactStageConfig.rescan_range must be > 1, got {self.rescan_range}"
@@ -515,6 +518,11 @@ _FAST = EasyHOIConfig(
             # registrations only adjust that depth to the moves of the mask fit (a second wide
             # scan jumped to another touching depth, e.g. the palm instead of the pinch)
             rescan_range=1.15,
+            # ... and only where the score says so: the band term is read from the 48^3 SDF
+            # grid, whose cells (about 0.026 of the object's size) are wider than the 0.02 band,
+            # so over a flat stretch of the scan it wobbles by a few hundredths from depth to
+            # depth; a re-scan that followed that wobble walked to the end of its range
+            rescan_tie_margin=0.05,
             # a registration moves the hand only along the camera rays: the photo fixes where
             # the hand is in the image, so the in-plane part of the ICP (biased where the two
             # surfaces differ in shape) would only pull the hand off its silhouette

@@ -337,7 +337,7 @@ def fit_contact(
             m_before = state.m
             state.m, _ = scan_scale(
                 scene, state.verts_cam(), state.camera, state.m, sdf_res,
-                optim_cfg.render_size, cfg.scan_tie_margin, cfg.scan_band, rescan,
+                optim_cfg.render_size, cfg.rescan_tie_margin, cfg.scan_band, rescan,
             )  # fmt: skip
             v = state.verts_obj()
             _, vis, _ = scene.hand_silhouettes(v, cam)
