@@ -520,8 +520,9 @@ _FAST = EasyHOIConfig(
             rescan_range=1.15,
             # ... and only where the score says so: the band term is read from the 48^3 SDF
             # grid, whose cells (about 0.026 of the object's size) are wider than the 0.02 band,
-            # so over a flat stretch of the scan it wobbles by a few hundredths from depth to
-            # depth; a re-scan that followed that wobble walked to the end of its range
+            # and the estimator's articulation leaves most contact-zone vertices outside the
+            # band, so across the re-scan's range it drifts by a few hundredths; a re-scan that
+            # followed that drift walked to the end of its range
             rescan_tie_margin=0.05,
             # a registration moves the hand only along the camera rays: the photo fixes where
             # the hand is in the image, so the in-plane part of the ICP (biased where the two
