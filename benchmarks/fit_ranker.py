@@ -17,6 +17,9 @@ training data and fits those weights again:
    highest top score) has IoU >= 0.5 before refinement, for the weights in the code and for
    the refitted ones, and the ceiling (a hypothesis among those ranked reaches 0.5);
    ``--print`` prints the refitted weights as the Python literal of ``ranker.RANKER_WEIGHTS``.
+4. ``--folds``: the same fit judged on photos it did not see: each half fitted and scored on
+   the other, and leave-one-photo-out over all photos with a held object (every photo scored
+   by weights fitted on the other 37), the estimate of what fitting on every photo would give.
 
 Usage::
 
@@ -183,6 +186,26 @@ def fit_listwise(
     return out
 
 
+def held_out(rows: list[dict], halves: dict[str, set[str]], l2: float, free: tuple[str, ...]):
+    """Top-1 rates of fits scored on photos they were not fitted on: each half on the other,
+    and leave one photo out over all photos with a held object."""
+    present = [r for r in rows if r["present"]]
+    line = []
+    for fit_on, score_on in (("tune", "check"), ("check", "tune")):
+        w = fit_listwise([r for r in present if r["half"] == fit_on], l2, free)
+        t = top1(rows, w, halves[score_on])
+        line.append(
+            f"{score_on} (fitted on {fit_on}) {np.mean([v >= 0.5 for v in t.values()]):.2f}"
+        )
+    loo: dict[str, float] = {}
+    names = sorted(halves["tune"] | halves["check"])
+    for name in names:
+        w = fit_listwise([r for r in present if r["name"] != name], l2, free)
+        loo.update(top1(rows, w, {name}))
+    line.append(f"leave-one-out {np.mean([v >= 0.5 for v in loo.values()]):.2f} (n {len(loo)})")
+    return "held out: " + "  ".join(line)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=DATA)
@@ -192,6 +215,9 @@ def main(argv=None) -> int:
     ap.add_argument("--top", type=int, default=None, help="hypotheses ranked (default RANK_TOP)")
     ap.add_argument("--free", default=",".join(FREE), help="features given a weight")
     ap.add_argument("--print", action="store_true", help="print the refitted weights")
+    ap.add_argument(
+        "--folds", action="store_true", help="also score fits on photos they did not see"
+    )
     args = ap.parse_args(argv)
     from easyhoi.perception import ranker as rk
 
@@ -216,6 +242,8 @@ def main(argv=None) -> int:
                 f"(n {len(t)}, ceiling {len(ceil) / max(1, len(t)):.2f})"
             )
         print(f"{label:6s} " + "  ".join(line))
+    if args.folds:
+        print(held_out(rows, halves, args.l2, tuple(args.free.split(","))))
     if args.print:
         print(repr(dict(zip(rk.FEATURES, np.round(w_fit, 3).tolist(), strict=True))))
     return 0

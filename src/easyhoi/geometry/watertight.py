@@ -37,6 +37,7 @@ from easyhoi.errors import BackendError, InvalidInputError, require
 from easyhoi.geometry.mesh import validate_mesh
 from easyhoi.geometry.raycast import ray_intersector
 from easyhoi.geometry.sdf import pseudonormal_signed_distance
+from easyhoi.io.native_output import silenced
 
 METHODS = ("auto", "meshfix", "fusion")
 SURFACES = ("carve", "poisson")
@@ -240,7 +241,8 @@ def meshfix(vertices: np.ndarray, faces: np.ndarray) -> trimesh.Trimesh:
         np.ascontiguousarray(merged.vertices, dtype=np.float64),
         np.ascontiguousarray(merged.faces, dtype=np.int32),
     )
-    fixer.repair()
+    with silenced(2):  # MeshFix warns on stderr when it cannot fix everything; checked below
+        fixer.repair()
     out = trimesh.Trimesh(np.asarray(fixer.points), np.asarray(fixer.faces), process=True)
     if len(out.faces) and out.is_watertight and out.volume < 0:
         out.invert()

@@ -17,7 +17,6 @@ import contextlib
 import hashlib
 import logging
 import os
-import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
@@ -27,6 +26,7 @@ import numpy as np
 import trimesh
 
 from easyhoi.errors import BackendError, InvalidInputError, require
+from easyhoi.io.native_output import silenced
 from easyhoi.metrics._common import M_TO_CM, as_mesh, to_numpy
 
 logger = logging.getLogger(__name__)
@@ -129,23 +129,6 @@ def clear_memory_cache() -> None:
     _MEMORY_CACHE.clear()
 
 
-@contextlib.contextmanager
-def _quiet_stdout():
-    """Silence C-level writes to file descriptor 1 (V-HACD prints its progress there)."""
-    fd = 1
-    with contextlib.suppress(AttributeError, OSError, ValueError):
-        sys.stdout.flush()
-    saved = os.dup(fd)
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, fd)
-        yield
-    finally:
-        os.dup2(saved, fd)
-        os.close(saved)
-        os.close(devnull)
-
-
 def _count_hulls(path: Path) -> int:
     n_groups = n_vertices = 0
     with open(path) as fh:
@@ -202,7 +185,7 @@ def convex_decomposition(
             os.close(fd)
             tmp.append(name)
         trimesh.Trimesh(centred, mesh.faces, process=False).export(tmp[0], file_type="obj")
-        with _quiet_stdout():
+        with silenced(1, keep_when_debug=False):  # V-HACD prints its progress on stdout
             p.vhacd(tmp[0], tmp[1], tmp[2], **params.pybullet_kwargs())
         n = _count_hulls(Path(tmp[1]))
         if n == 0:

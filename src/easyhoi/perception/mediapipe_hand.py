@@ -28,12 +28,10 @@ Conventions of the output (:class:`~easyhoi.perception.base.HandDetection`):
 
 from __future__ import annotations
 
-import contextlib
 import importlib
 import importlib.util
 import logging
 import math
-import os
 import sys
 import threading
 
@@ -41,6 +39,7 @@ import numpy as np
 
 from easyhoi.errors import BackendError, InvalidInputError, MissingDependencyError
 from easyhoi.io.image import check_image
+from easyhoi.io.native_output import silenced
 from easyhoi.perception.base import HandDetection, register
 
 logger = logging.getLogger(__name__)
@@ -85,32 +84,6 @@ def _shared_graph(key: tuple, build):
         if key not in _GRAPHS:
             _GRAPHS[key] = build()
         return _GRAPHS[key]
-
-
-@contextlib.contextmanager
-def _quiet_native_stderr():
-    """Silence MediaPipe's native (TFLite / absl) info and warning lines on file descriptor 2.
-
-    They bypass Python logging and would be printed on every run. Kept when easyhoi's debug
-    log is on (``--verbose``) or when stderr has no file descriptor (captured in tests).
-    """
-    if logger.isEnabledFor(logging.DEBUG):
-        yield
-        return
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError, AttributeError):
-        yield
-        return
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, 2)
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-        os.close(devnull)
 
 
 #: Packages whose ``__init__`` only gathers convenience names: ``mediapipe`` imports every
@@ -378,7 +351,7 @@ class MediaPipeHands:
                 empty when no hand.
         """
         image = check_image(image)
-        with _quiet_native_stderr():
+        with silenced(2):  # TFLite / absl info and warning lines
             dets = self._palm_pass(image)
             if not dets and self.roi_search:
                 dets = self._roi_pass(image)

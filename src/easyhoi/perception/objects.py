@@ -23,6 +23,7 @@ import numpy as np
 import trimesh
 
 from easyhoi.errors import BackendError, InvalidInputError
+from easyhoi.io.native_output import silenced
 from easyhoi.perception.base import register
 from easyhoi.perception.shapes.common import signed_distance_2d
 from easyhoi.perception.shapes.inflation import (
@@ -134,7 +135,9 @@ def canonical_mesh(verts_px: np.ndarray, faces: np.ndarray, meta: dict) -> trime
 def _repair(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     import pymeshfix
 
-    v, f = pymeshfix.clean_from_arrays(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    # MeshFix warns on stderr when it cannot fix everything; the check below decides
+    with silenced(2):
+        v, f = pymeshfix.clean_from_arrays(np.asarray(mesh.vertices), np.asarray(mesh.faces))
     fixed = trimesh.Trimesh(v, f, process=True)
     if not fixed.is_watertight:
         raise BackendError("could not make the reconstructed object mesh watertight")
