@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from easyhoi.errors import InvalidInputError
+from easyhoi.perception.shapes.inflation import DEPTH_RATIO
 from easyhoi.perception.objects import (
     SilhouetteReconstructor,
     local_thickness,
@@ -107,13 +108,15 @@ def test_l_shape_inflates():
     assert mesh.metadata["easyhoi"]["method"] == "inflation"
     check_canonical(mesh)
     assert iou(silhouette(mesh, m.shape), m) > 0.9
-    # round cross-sections: depth extent = diameter of the largest inscribed disk (at the
-    # elbow: 2 * 29.3 px, the arms alone are 50 px wide)
+    # round cross-sections flattened to DEPTH_RATIO: depth extent = that share of the diameter
+    # of the largest inscribed disk (at the elbow: 2 * 29.3 px, the arms alone are 50 px wide)
+    k = DEPTH_RATIO
     depth = mesh.extents[2] * mesh.metadata["easyhoi"]["pixels_per_unit"]
-    assert depth == pytest.approx(2 * signed_distance_2d(m).max(), rel=0.06)
-    # volume between the tube bound (2 arms of radius 25) and the slab bound (area x width)
-    assert pixel_volume(mesh) < m.sum() * 50
-    assert pixel_volume(mesh) > 0.6 * m.sum() * 50
+    assert depth == pytest.approx(k * 2 * signed_distance_2d(m).max(), rel=0.06)
+    # volume between the tube bound (2 arms of radius 25) and the slab bound (area x width),
+    # both flattened by the same share
+    assert pixel_volume(mesh) < k * m.sum() * 50
+    assert pixel_volume(mesh) > k * 0.6 * m.sum() * 50
 
 
 def test_equal_arm_l_is_not_revolved():
@@ -129,13 +132,14 @@ def test_equal_arm_l_is_not_revolved():
     assert mesh.metadata["easyhoi"]["method"] == "inflation"
 
 
-def test_inflated_disk_is_a_sphere():
+def test_inflated_disk_is_a_flattened_sphere():
+    """A disk inflates to a spheroid: round across, DEPTH_RATIO x its diameter along the view."""
     m = disk()
     mesh = SilhouetteReconstructor(families=("inflation",)).reconstruct(None, m)
     assert mesh.metadata["easyhoi"]["method"] == "inflation"
     check_canonical(mesh)
     r = np.sqrt(m.sum() / np.pi)
-    assert pixel_volume(mesh) == pytest.approx(4 / 3 * np.pi * r**3, rel=0.05)
+    assert pixel_volume(mesh) == pytest.approx(DEPTH_RATIO * 4 / 3 * np.pi * r**3, rel=0.05)
     assert iou(silhouette(mesh, m.shape), m) > 0.9
 
 

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from easyhoi.perception.objects import SilhouetteReconstructor
-from easyhoi.perception.shapes import common, cuboid, superquadric
+from easyhoi.perception.shapes import common, cuboid, inflation, superquadric
 from easyhoi.perception.shapes.hand_cues import PAD_M, hand_cues
 from tests.test_perception_objects import check_canonical, iou, silhouette
 
@@ -77,6 +77,22 @@ def test_superquadric_recovers_a_rounded_square_outline():
     assert h.iou > 0.97
     depth = np.ptp(h.verts[:, 2]) * wf.scale
     assert depth == pytest.approx(100, rel=0.06)  # c = b: round in depth
+
+
+def test_inflation_of_a_blob_keeps_its_outline_at_the_set_depth():
+    """An irregular outline (no parametric family) inflates to its own outline, as deep along
+    the view as DEPTH_RATIO x the round cross-section at its widest part."""
+    m = np.zeros((200, 240), bool)
+    cv2.circle(m.view(np.uint8), (90, 100), 60, 1, -1)  # a disk of radius 60 ...
+    cv2.ellipse(m.view(np.uint8), (170, 80), (45, 22), 25, 0, 360, 1, -1)  # ... and a lobe
+    wf = common.work_frame(m)
+    h = inflation.fit(wf)
+    assert h.iou > 0.97
+    depth = np.ptp(h.verts[:, 2]) * wf.scale
+    assert depth == pytest.approx(inflation.DEPTH_RATIO * 120, rel=0.05)
+    # flattened about the mid-surface: the front and the back mirror each other
+    z = h.verts[:, 2]
+    assert z.max() == pytest.approx(-z.min(), rel=0.02)
 
 
 def test_tube_recovers_a_banana():

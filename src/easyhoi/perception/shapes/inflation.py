@@ -7,6 +7,13 @@ cross-section, so a disk inflates to a sphere and a bar to a tube. The closed su
 zero level set of ``h^2 - (z - c)^2`` (``c`` = mid-surface) extracted by marching cubes. The
 outline is reproduced exactly whatever its shape, which is why inflation is the fallback: it
 explains any outline and so is chosen only when no family with fewer parameters fits.
+
+The hypothesis is then flattened about its mid-surface to :data:`DEPTH_RATIO` of that round
+depth (an elliptical cross-section). The outline says nothing about the depth, and the round
+one is the largest an object of that outline is likely to have: the objects people hold in
+one hand are mostly flatter along the view than across it (phones, remotes, boxes, tubes of
+paste, soap, tools) and seldom deeper (a mug seen from its side). A mildly flatter default is
+closer on average; docs/object_shape.md gives the measurements.
 """
 
 from __future__ import annotations
@@ -16,6 +23,9 @@ from scipy import ndimage
 
 from easyhoi.perception.shapes.common import Hypothesis, WorkFrame, fit_iou, rasterize
 from easyhoi.perception.shapes.common import signed_distance_2d as signed_distance_2d
+
+#: Depth of the inflation along the view as a share of the round cross-section's (module docs).
+DEPTH_RATIO = 0.85
 
 
 def local_thickness(mask: np.ndarray, d: np.ndarray, levels: int = 48) -> np.ndarray:
@@ -103,7 +113,9 @@ def implicit_slab_mesh(
 
 
 def fit(wf: WorkFrame, max_faces: int = 6000) -> Hypothesis:
-    """The inflation hypothesis of the working frame's mask (round cross-sections)."""
+    """The inflation hypothesis of the working frame's mask: round cross-sections flattened to
+    :data:`DEPTH_RATIO` about the mid-surface (z = 0)."""
     verts, faces = implicit_slab_mesh(wf.mask, half_thickness_sq(wf.mask), max_faces=max_faces)
+    verts[:, 2] *= DEPTH_RATIO
     iou = fit_iou(rasterize(verts[:, :2], faces, wf.mask.shape), wf)
     return Hypothesis("inflation", verts, faces, iou, False, info={})
