@@ -165,6 +165,36 @@ def test_plan_names_seeds_and_collisions(tmp_path):
         plan_tasks(files, tmp_path / "out", root=d / "sub")
 
 
+def test_plan_names_linked_photos_by_their_place_in_the_folder(tmp_path):
+    """A folder of symbolic links to photos kept elsewhere (a common way to pick a subset of a
+    data set) is a batch like any other: each photo is named by its link."""
+    store = tmp_path / "store"
+    store.mkdir()
+    a, b = _photo(store / "a.jpg", 1), _photo(store / "b.png", 2)
+    d = tmp_path / "picked"
+    (d / "sub").mkdir(parents=True)
+    (d / "first.jpg").symlink_to(a)
+    (d / "sub" / "second.png").symlink_to(b)
+    photos = discover_images(d, recursive=True)
+    assert [p.relative_to(d).as_posix() for p in photos] == ["first.jpg", "sub/second.png"]
+    for root in (d, None):
+        tasks = plan_tasks(photos, tmp_path / "out", seed=3, root=root)
+        assert [t.key for t in tasks] == ["first.jpg", "sub/second.png"]
+        assert [t.image for t in tasks] == [str(p) for p in photos]
+    # photos named through a link to their folder, against the folder's real path
+    (store / "sub").mkdir()
+    c = _photo(store / "sub" / "c.jpg", 3)
+    (tmp_path / "storelink").symlink_to(store, target_is_directory=True)
+    named = [tmp_path / "storelink" / "sub" / "c.jpg"]
+    assert [t.key for t in plan_tasks(named, tmp_path / "out", root=store)] == ["sub/c.jpg"]
+    assert [t.key for t in plan_tasks([c], tmp_path / "out", root=tmp_path / "storelink")] == [
+        "sub/c.jpg"
+    ]
+    # a photo outside the root is still refused
+    with pytest.raises(InvalidInputError, match="not inside"):
+        plan_tasks([a], tmp_path / "out", root=d)
+
+
 def test_threads_per_worker():
     assert [threads_per_worker(w, cores=8) for w in (1, 2, 3, 8, 16)] == [8, 4, 2, 1, 1]
 

@@ -234,19 +234,28 @@ def plan_tasks(
         r = Path(p).resolve()
         if r not in seen:
             seen.add(r)
-            paths.append((Path(p), r))
+            # names come from the path as given (absolute, symbolic links kept): a folder of
+            # links to photos elsewhere names them by their place in the folder
+            paths.append((Path(p), r, Path(os.path.abspath(p))))
     if not paths:
         return []
     if root is None:
-        base = Path(os.path.commonpath([str(r.parent) for _, r in paths]))
+        base = Path(os.path.commonpath([str(a.parent) for _, _, a in paths]))
+        base_r = Path(os.path.commonpath([str(r.parent) for _, r, _ in paths]))
     else:
-        base = Path(root).resolve()
+        base, base_r = Path(os.path.abspath(root)), Path(root).resolve()
     keys = {}
-    for given, r in paths:
+    for given, r, a in paths:
         try:
-            keys[r.relative_to(base).as_posix()] = given
-        except ValueError as exc:
-            raise InvalidInputError(f"photo {given} is not inside the batch root {base}") from exc
+            key = a.relative_to(base)
+        except ValueError:
+            try:  # the same photo reached through a link to one of its folders
+                key = r.relative_to(base_r)
+            except ValueError as exc:
+                raise InvalidInputError(
+                    f"photo {given} is not inside the batch root {base}"
+                ) from exc
+        keys[key.as_posix()] = given
     folders = _folder_names(sorted(keys))
     out = Path(out_dir)
     return [
