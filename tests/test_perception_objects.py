@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 from easyhoi.errors import InvalidInputError
-from easyhoi.perception.shapes.inflation import DEPTH_RATIO
 from easyhoi.perception.objects import (
     SilhouetteReconstructor,
     local_thickness,
     object_crop,
     signed_distance_2d,
 )
+from easyhoi.perception.shapes.inflation import DEPTH_RATIO
 
 
 def disk(shape=(200, 240), center=(120, 100), radius=60) -> np.ndarray:

@@ -1,0 +1,52 @@
+"""benchmarks/bench_real_scale.py: the size error against a kind's range, the box sides of a
+metric mesh, and its photo list (every entry has a reference and a kind with a size)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _script():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    spec = importlib.util.spec_from_file_location(
+        "bench_real_scale", ROOT / "benchmarks" / "bench_real_scale.py"
+    )
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_range_error_is_zero_inside_and_relative_to_the_nearer_end():
+    bs = _script()
+    assert bs.range_error(118.0, 115.0, 122.0) == 0.0
+    assert bs.range_error(115.0, 115.0, 122.0) == 0.0
+    assert bs.range_error(57.0, 66.0, 66.0) == pytest.approx(9 / 66)
+    assert bs.range_error(178.4, 115.0, 122.0) == pytest.approx(56.4 / 122)
+
+
+def test_box_sides_of_a_rotated_metric_box_in_millimetres():
+    bs = _script()
+    box = trimesh.creation.box(extents=(0.02, 0.1, 0.05))
+    R = trimesh.transformations.rotation_matrix(0.7, [1.0, 2.0, 0.5])
+    box.apply_transform(R)
+    np.testing.assert_allclose(bs.obb_sides_mm(box), [100.0, 50.0, 20.0], atol=0.5)
+
+
+def test_every_photo_has_a_reference_labelled_as_its_kind():
+    bs = _script()
+    refs = ROOT / "tests" / "data" / "perception_refs"
+    for stem, kind in bs.PHOTOS.items():
+        (l_lo, l_hi), (s_lo, s_hi) = bs.KINDS[kind]
+        assert 0 < s_lo <= s_hi <= l_lo <= l_hi
+        labels = [o["name"] for o in json.loads((refs / f"{stem}.json").read_text())["objects"]]
+        # the reference names the held object; the kind is that label or the object it is
+        assert any(kind.split()[-1] in lab or lab in kind for lab in labels), (stem, labels)
