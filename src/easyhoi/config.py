@@ -314,6 +314,10 @@ class RefineStageConfig:
     through its centroid (which also changes its apparent size). Used with a camera only."""
     prior_weight: float = 0.0
     """Weight of the anatomical pose prior (joint limits, hinges, finger coupling); 0: off."""
+    close_gap: bool = False
+    """After the gradient steps, a hand that does not touch the object is moved along the camera
+    rays (a change of the metric scale that keeps its projection) to where its nearest vertex
+    touches the surface (optim.close_gap; needs a camera). False: the paper."""
 
     def __post_init__(self):
         _finite(self)
@@ -578,6 +582,9 @@ _FAST = EasyHOIConfig(
             # projection exactly, only its depth relative to the object gives
             push_out_scale=True,
             rigid_first=True,
+            # ... and a hand the steps leave beside the object is brought back onto it along the
+            # camera rays, the one direction the photo does not fix
+            close_gap=True,
         ),
         # half the paper's render size: every render costs in proportion to its pixels
         render_size=128,

@@ -25,7 +25,9 @@ sum would weigh 2.5x more against the penetration mean than the paper's). For MA
 with ``d`` the object SDF (trilinear lookup in an ``sdf_resolution``^3 grid) in normalised
 object units (object units / the object's largest side). A term with weight 0 is not computed.
 Adam over coarse-to-fine phases; each phase's lowest-loss state seeds the next; the last phase's
-best state is returned. Stopping: ``patience`` or the phase's share of ``max_iters``.
+best state is returned. Stopping: ``patience`` or the phase's share of ``max_iters``. With
+``close_gap`` a returned hand that does not touch the object is then moved along the camera rays
+onto it (:mod:`easyhoi.optim.close_gap`; the metric scale changes, the projection does not).
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from easyhoi.config import OptimConfig, RefineStageConfig
 from easyhoi.hand.regions import DIGIT_JOINTS
 from easyhoi.hoi import StageResult
 from easyhoi.optim.adam import Adam
+from easyhoi.optim.close_gap import close_gap
 from easyhoi.optim.hand_terms import keypoint_drift_loss, keypoint_loss, pose_prior_loss
 from easyhoi.optim.loop import StageLoop, restore, run_phases, snapshot
 from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
@@ -322,15 +325,26 @@ def fit_refine(
         begin, step, lambda state: restore(variables, state),
     )  # fmt: skip
     masks, cam = last.context
+    params = current().detach().clone()
+    gap = None
+    if cfg.close_gap:
+        k, gap = close_gap(scene, params, metric_scale, camera, cfg.sdf_resolution,
+                           0.5 * cfg.penetration_threshold, PUSH_OUT_MAX)  # fmt: skip
+        if k != 1.0:  # the same hand in the camera, the object's metric scale m / k
+            m_new = float(metric_scale) / k
+            eye = camera.center.detach().to(dt)
+            params = params.__class__(params.global_orient, params.transl + (m_new - float(
+                metric_scale)) * eye[None], params.pose, params.betas, params.side)  # fmt: skip
+            metric_scale = m_new
     with torch.no_grad():
-        verts = scene.hand_model(current()).vertices[0] / metric_scale
+        verts = scene.hand_model(params).vertices[0] / metric_scale
         _, visible, _ = scene.hand_silhouettes(verts, cam)
         final_iou = hard_iou(visible, masks["hand"])
-    params = current().detach().clone()
     with torch.no_grad():
         final = refine_terms(scene, params, metric_scale, theta0, cfg, cam, masks)
     extra = {
         "push_out": None if push is None else push[1],
+        "close_gap": gap,
         "final_mask_iou": final_iou,
         "final_terms": {k: float(v) for k, v in final.items()},
         "best_iter": loop.best_iter,
