@@ -7,6 +7,7 @@ from easyhoi.perception.chain import PerceptionReport
 from easyhoi.perception.confidence import MaskConfidence
 from easyhoi.perception.feedback import (
     advice,
+    contact_line,
     hand_choice_note,
     low_confidence_error,
     low_confidence_lines,
@@ -61,3 +62,20 @@ def test_hand_choice_note_of_an_object_prompt():
     assert hand_choice_note(perception) == (
         "using hand 1 (left), the hand nearest the object prompt"
     )
+
+
+def test_contact_line_only_for_a_hand_apart_from_its_object():
+    apart = {"in_contact": False, "contact_distance_cm": 2.0279, "penetration_depth_cm": 0.0}
+    assert contact_line(apart) == (
+        "the hand does not touch the object in the result (2.0 cm apart): the object mask or the "
+        "hand's keypoints place them apart (see masks.png); re-run with --object-point X,Y on the "
+        "held object (or --object-box X0,Y0,X1,Y1 around it)"
+    )
+    assert contact_line(apart, "batch", prompted=True).endswith(
+        "add object_point rows on parts of the object the mask misses, or an object_box"
+    )
+    assert "cm apart" not in contact_line({"in_contact": False})
+    assert contact_line({"in_contact": True, "contact_distance_cm": -0.2}) is None
+    # a metric that could not be computed (None) is not reported as a gap
+    assert contact_line({"in_contact": None}) is None
+    assert contact_line({}) is None

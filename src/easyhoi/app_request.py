@@ -223,7 +223,7 @@ def _read_metrics(result_json: Path | None, rec) -> dict:
 
 
 def _perception_warnings(result_json: Path | None, prompted: bool) -> tuple[str, ...]:
-    from easyhoi.perception.feedback import hand_choice_note, low_confidence_lines
+    from easyhoi.perception.feedback import contact_line, hand_choice_note, low_confidence_lines
 
     try:
         doc = json.loads(result_json.read_text(encoding="utf-8")) if result_json else {}
@@ -232,8 +232,10 @@ def _perception_warnings(result_json: Path | None, prompted: bool) -> tuple[str,
     perception = (doc.get("meta") or {}).get("perception") or {}
     note = hand_choice_note(perception)
     lines = [note[0].upper() + note[1:] + "."] if note else []
-    return tuple(lines + [w[0].upper() + w[1:] + "." for w in
-                          low_confidence_lines(perception, "demo", prompted)])  # fmt: skip
+    warnings = low_confidence_lines(perception, "demo", prompted)
+    apart = contact_line(doc.get("plausibility") or {}, "demo", prompted)
+    warnings += [apart] if apart else []
+    return tuple(lines + [w[0].upper() + w[1:] + "." for w in warnings])
 
 
 def _photo_view(files: dict, dest: Path):

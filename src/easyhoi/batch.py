@@ -721,7 +721,11 @@ class ReconstructWorker:
         first-use imports included), file count, and what the user must hear about perception:
         ``notes`` (the hand used is not the first detected) and ``warnings`` (low confidence).
         """
-        from easyhoi.perception.feedback import hand_choice_note, low_confidence_lines
+        from easyhoi.perception.feedback import (
+            contact_line,
+            hand_choice_note,
+            low_confidence_lines,
+        )
         from easyhoi.pipeline import reconstruct_photo
         from easyhoi.settings import RunSettings, resolve_run
 
@@ -733,9 +737,12 @@ class ReconstructWorker:
                                 prompts=prompts, strict=self.strict)  # fmt: skip
         note = hand_choice_note(rec.perception)
         prompted = prompts is not None and prompts.has_object_prompt
+        plaus = getattr(getattr(rec, "result", None), "plausibility", None) or {}
+        apart = contact_line(plaus, "batch", prompted)
         return {
             "seconds": round(float(rec.seconds), 3), "files": len(rec.files),
             "cpu_seconds": round(time.process_time() - cpu0, 3),
             "notes": [note] if note else [],
-            "warnings": low_confidence_lines(rec.perception, "batch", prompted),
+            "warnings": low_confidence_lines(rec.perception, "batch", prompted)
+            + ([apart] if apart else []),
         }  # fmt: skip

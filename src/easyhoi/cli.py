@@ -141,6 +141,7 @@ def cmd_reconstruct(args) -> int:
             prompts=prompts, strict=args.strict,
         )  # fmt: skip
     _tell_perception(args, image, rec.perception, prompts)
+    _tell_contact(image, getattr(getattr(rec, "result", None), "plausibility", None), prompts)
     _say(args, f"{image}: done in {rec.seconds:.1f} s -> {folder} (open report.html)")
     for f in rec.files:
         logger.info("wrote %s", f)
@@ -376,6 +377,16 @@ def _tell_perception(args, image, perception: dict, prompts=None) -> None:
         _err(f"{image}: note: {note}")
     prompted = prompts is not None and prompts.has_object_prompt
     for line in low_confidence_lines(perception, "cli", prompted):
+        _err(f"{image}: warning: {line}")
+
+
+def _tell_contact(image, plausibility: dict, prompts=None) -> None:
+    """Warn when the result's hand does not touch its object."""
+    from easyhoi.perception.feedback import contact_line
+
+    prompted = prompts is not None and prompts.has_object_prompt
+    line = contact_line(plausibility or {}, "cli", prompted)
+    if line:
         _err(f"{image}: warning: {line}")
 
 

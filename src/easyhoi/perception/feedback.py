@@ -7,7 +7,10 @@ line and the web demo, so both say the same thing:
 
 * a low-confidence mask names its weak cues and the one gesture that fixes it: a point on the
   held object for the object masks, a point on the holding hand for the hand mask;
-* a result that does not use the first detected hand says so, and why.
+* a result that does not use the first detected hand says so, and why;
+* a result whose hand does not touch its object says so (:func:`contact_line`): the photo shows
+  a held object, so a gap means the masks or the hand's keypoints are off, and the fix is the
+  same point on the held object.
 """
 
 from __future__ import annotations
@@ -85,4 +88,20 @@ def hand_choice_note(perception: dict) -> str | None:
     return (
         f"{why}: the result uses hand {index} ({side}) of {perception.get('hands_found')} "
         f"detected (choose another with --hand-point X,Y)"
+    )
+
+
+def contact_line(plausibility: dict, where: str = "cli", prompted: bool = False) -> str | None:
+    """A sentence when the result's hand does not touch its object, else None.
+
+    ``plausibility``: the result's report (``HOIResult.plausibility``, ``result.json``), whose
+    ``in_contact`` says whether a hand vertex is inside the object or within 5 mm of it.
+    """
+    if plausibility.get("in_contact") is not False:
+        return None
+    gap = plausibility.get("contact_distance_cm")
+    apart = f" ({float(gap):.1f} cm apart)" if isinstance(gap, int | float) else ""
+    return (
+        f"the hand does not touch the object in the result{apart}: the object mask or the "
+        f"hand's keypoints place them apart (see masks.png); {advice('object', where, prompted)}"
     )
