@@ -3,26 +3,17 @@ metric mesh, and its photo list (every entry has a reference and a kind with a s
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import ROOT, load_script
 
 
 def _script():
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    spec = importlib.util.spec_from_file_location(
-        "bench_real_scale", ROOT / "benchmarks" / "bench_real_scale.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("benchmarks/bench_real_scale.py")
 
 
 def test_range_error_is_zero_inside_and_relative_to_the_nearer_end():

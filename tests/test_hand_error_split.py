@@ -3,21 +3,13 @@ benchmark's own scenes (its estimator row must be the one the benchmark's tables
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import load_script
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location(
-        "hand_error_split", ROOT / "benchmarks" / "hand_error_split.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("benchmarks/hand_error_split.py")
 
 
 def test_split_matches_the_benchmark_estimator_and_orders_its_parts():

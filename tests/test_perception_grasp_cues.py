@@ -176,15 +176,10 @@ def test_ranker_score_is_the_hand_set_score_plus_the_weighted_features():
 
 
 def test_stored_ranker_weights_keep_the_signs_of_their_reasons():
-    import importlib.util
-    from pathlib import Path
-
     from easyhoi.perception import ranker
+    from tests.helpers import load_script
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "fit_ranker.py"
-    spec = importlib.util.spec_from_file_location("fit_ranker", path)
-    fit = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(fit)
+    fit = load_script("benchmarks/fit_ranker.py")
     assert ranker.RANKER_WEIGHTS["score"] == 1.0
     for k, v in ranker.RANKER_WEIGHTS.items():
         if k != "score":

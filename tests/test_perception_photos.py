@@ -7,23 +7,17 @@ controller, the can and the phone, automatically and with one click on the objec
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from easyhoi.io.image import load_image
+from tests.helpers import load_script
 
 pytestmark = pytest.mark.slow
 
 
 def _chain_module():
-    path = Path(__file__).resolve().parents[1] / "scripts" / "perception_contact_sheet.py"
-    spec = importlib.util.spec_from_file_location("perception_contact_sheet", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("scripts/perception_contact_sheet.py")
 
 
 @pytest.fixture(scope="module")

@@ -205,10 +205,10 @@ def test_dev_photos_best_hypothesis_and_automatic_choice():
     hypothesis reaches IoU >= 0.5 with the hand-drawn held object on at least 60 % of the photos
     with an object (68 % measured), the automatic choice on at least 28 % (32 % measured), and
     the photo where nothing is held gets a low object confidence."""
-    import importlib.util
     from pathlib import Path
 
     from tests.conftest import SHARED_DATA
+    from tests.helpers import load_script
 
     if not SHARED_DATA.is_dir():
         pytest.skip("shared photos not available")
@@ -217,10 +217,7 @@ def test_dev_photos_best_hypothesis_and_automatic_choice():
     from easyhoi.perception.masks import ClassicalHOISegmenter
     from easyhoi.perception.mediapipe_hand import MediaPipeHands
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_perception.py"
-    spec = importlib.util.spec_from_file_location("bench_perception", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_script("benchmarks/bench_perception.py")
     detector, seg = MediaPipeHands(), ClassicalHOISegmenter()
     best, chosen, nothing_held = [], [], []
     for f in sorted((Path(__file__).parent / "data" / "perception_refs").glob("*.json")):

@@ -19,18 +19,32 @@ lies beside the object in the image), is left where it is.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 
 from easyhoi.optim.state import Scene
 from easyhoi.structures import Camera, HandParams
 
-__all__ = ["CLOSE_GAP_SCAN", "close_gap"]
+__all__ = ["CLOSE_GAP_SCAN", "close_gap", "rescaled_along_rays"]
 
 #: Candidate moves of the hand's centroid along its ray scanned each way before the bisection,
 #: up to the largest move (normalised object units, see :data:`easyhoi.optim.refine.PUSH_OUT_MAX`).
 CLOSE_GAP_SCAN = 24
 #: Bisection steps between the last scanned move with a gap and the first that touches.
 CLOSE_GAP_BISECT = 30
+
+
+def rescaled_along_rays(
+    params: HandParams, metric_scale: float, k: float, camera: Camera
+) -> tuple[HandParams, float]:
+    """The same metric hand in the camera after its object-unit vertices are scaled by ``k``
+    about the camera centre: the object's metric scale becomes ``m / k`` and, in the metric
+    object frame, the hand moves by ``(m / k - m) eye`` (``eye``: the camera centre, object
+    units). Returns (params, new metric scale)."""
+    m_new = float(metric_scale) / float(k)
+    eye = camera.center.detach().to(params.transl.dtype)
+    return replace(params, transl=params.transl + (m_new - float(metric_scale)) * eye[None]), m_new
 
 
 def close_gap(

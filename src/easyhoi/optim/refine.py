@@ -40,7 +40,7 @@ from easyhoi.config import OptimConfig, RefineStageConfig
 from easyhoi.hand.regions import DIGIT_JOINTS
 from easyhoi.hoi import StageResult
 from easyhoi.optim.adam import Adam
-from easyhoi.optim.close_gap import close_gap
+from easyhoi.optim.close_gap import close_gap, rescaled_along_rays
 from easyhoi.optim.hand_terms import keypoint_drift_loss, keypoint_loss, pose_prior_loss
 from easyhoi.optim.loop import StageLoop, restore, run_phases, snapshot
 from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
@@ -272,13 +272,9 @@ def fit_refine(
         push = push_out(scene, p0, metric_scale, cfg, camera, as_scale=cfg.push_out_scale)
     if push is None:
         tr0 = p0.transl.clone()
-    elif cfg.push_out_scale:
-        # the same metric hand in the camera, the object's metric scale m / k: in the metric
-        # object frame the hand moves by (m' - m) eye (eye: the camera centre, object units)
-        m_new = float(metric_scale) / float(push[0])
-        eye = camera.center.detach().to(dt)
-        tr0 = p0.transl + (m_new - float(metric_scale)) * eye[None]
-        metric_scale = m_new
+    elif cfg.push_out_scale:  # the same metric hand in the camera, the object's scale m / k
+        pushed, metric_scale = rescaled_along_rays(p0, metric_scale, float(push[0]), camera)
+        tr0 = pushed.transl
     else:
         tr0 = p0.transl + float(metric_scale) * push[0]
     unit = float(scene.extent) * float(metric_scale)  # metres per normalised object unit
@@ -330,12 +326,8 @@ def fit_refine(
     if cfg.close_gap:
         k, gap = close_gap(scene, params, metric_scale, camera, cfg.sdf_resolution,
                            0.5 * cfg.penetration_threshold, PUSH_OUT_MAX)  # fmt: skip
-        if k != 1.0:  # the same hand in the camera, the object's metric scale m / k
-            m_new = float(metric_scale) / k
-            eye = camera.center.detach().to(dt)
-            params = params.__class__(params.global_orient, params.transl + (m_new - float(
-                metric_scale)) * eye[None], params.pose, params.betas, params.side)  # fmt: skip
-            metric_scale = m_new
+        if k != 1.0:
+            params, metric_scale = rescaled_along_rays(params, metric_scale, k, camera)
     with torch.no_grad():
         verts = scene.hand_model(params).vertices[0] / metric_scale
         _, visible, _ = scene.hand_silhouettes(verts, cam)
