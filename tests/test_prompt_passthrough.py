@@ -133,6 +133,36 @@ def test_the_segmenters_confidence_reaches_the_report(config, monkeypatch):
     assert set(report.confidence) == {"hand"}
 
 
+def test_the_detectors_keypoint_confidence_reaches_the_input(config, monkeypatch):
+    class Rated:
+        def segment(self, image, hand, prompts=None):
+            obj = np.zeros(image.shape[:2], bool)
+            obj[30:70, 120:150] = True
+            hand_mask = np.zeros_like(obj)
+            hand_mask[30:70, 150:180] = True
+            return Segmentation(hand_mask, obj, hand.side == "right")
+
+    class SureOfSome(TwoHands):
+        asked: list = []
+
+        def keypoint_confidence(self, image, hand):
+            SureOfSome.asked.append(float(hand.keypoints2d[:, 0].mean()))
+            return np.linspace(0.05, 1.0, 21)
+
+    monkeypatch.setitem(base._REGISTRY["segmenter"], "rated", Rated)
+    monkeypatch.setitem(base._REGISTRY["hand"], "sure-of-some", SureOfSome)
+    rated = replace(config, perception=replace(config.perception, segmenter="rated"))
+    img = np.random.default_rng(0).integers(0, 255, (100, 200, 3), dtype=np.uint8)
+    inp, _ = perceive(img, rated)  # TwoHands: no confidence measure
+    assert "keypoints2d_confidence" not in inp.meta
+    sure = replace(rated, perception=replace(rated.perception, hand="sure-of-some"))
+    inp, report = perceive(img, sure)
+    # asked once, for the chosen hand (the right one, at u = 160)
+    assert SureOfSome.asked == [pytest.approx(160.0, abs=2.0)]
+    np.testing.assert_allclose(inp.meta["keypoints2d_confidence"], np.linspace(0.05, 1.0, 21))
+    assert "keypoint confidence" in report.timings
+
+
 def test_grounded_sam_gets_both_model_folders(monkeypatch, tmp_path):
     from easyhoi.cli import _config_from_args, build_parser
     from easyhoi.config import PerceptionConfig

@@ -150,10 +150,10 @@ def perceive(
         say("hand detection (provided)")
         side = pv.hand[0].side
         hands = [HandDetection(np.zeros((0, 2)), None, side, 1.0, meta={"source": "provided"})]
+        detector = None
     else:
-        hands = timed(
-            "hand detection", _backend(pc, "hand", pc.hand, seed, run.device).detect, image
-        )
+        detector = _backend(pc, "hand", pc.hand, seed, run.device)
+        hands = timed("hand detection", detector.detect, image)
     report.hands_found = len(hands)
     if not hands:
         raise NoHandError("no hand found in the photo")
@@ -195,6 +195,11 @@ def perceive(
         report.notes.append("hand provided (imported), not fitted")
     else:
         chosen = timed("hand fit", fit_detection, chosen, model, W, H)
+    # how sure the detector is of each keypoint, where it can say (the optimizer's keypoint
+    # terms weigh the joints by it)
+    kp_confidence = None
+    if pv.hand is None and hasattr(detector, "keypoint_confidence"):
+        kp_confidence = timed("keypoint confidence", detector.keypoint_confidence, image, chosen)
 
     inpainter = _backend(pc, "inpainter", pc.inpainter, seed, run.device)
     inpainted = timed("inpainting", inpainter.inpaint, image, seg.hand_mask)
@@ -237,6 +242,8 @@ def perceive(
         inpainted_image=inpainted,
         meta={
             "keypoints2d": np.asarray(chosen.keypoints2d).tolist(),
+            **({} if kp_confidence is None else
+               {"keypoints2d_confidence": np.round(kp_confidence, 4).tolist()}),
             "hand_side": chosen.side,
             "detection": {k: v for k, v in chosen.meta.items() if _jsonable(v)},
             "perception": report.to_dict(),

@@ -24,6 +24,18 @@ Conventions of the output (:class:`~easyhoi.perception.base.HandDetection`):
   labelled "Right" by MediaPipe). Pass ``mirrored=True`` for selfie-mirrored input.
 - ``score``: MediaPipe exposes no detection score in this API; the handedness probability is
   used, halved for hands found only by the ROI search (``meta["pass"]`` says which pass).
+
+Per-keypoint confidence (:meth:`MediaPipeHands.keypoint_confidence`): the landmark model gives
+none, so it is measured. The model is run again on crops around the detected hand that are
+rotated, scaled and shifted a little (:data:`CONFIDENCE_CROPS`); a keypoint the model has
+located from clear evidence stays where it is, one it guesses (hidden behind the object or the
+other fingers, blurred, cut off) moves with the crop. The spread of a keypoint (the median
+distance of its positions to their median, over the hand's size) becomes the confidence
+``1 / (1 + (spread / SPREAD_SCALE)^2)``. On the development photos with reference keypoints the
+spread correlates with the detector's error joint by joint (correlation +0.44 on average over 13
+photos; the wrist and the thumb's base, which the palm hides in many grasps, spread most), and
+a detection that swapped the thumb and the fingers has a median confidence of 0.20 against
+0.64-0.93 on the others.
 """
 
 from __future__ import annotations
@@ -51,6 +63,20 @@ MEDIAPIPE_TO_OPENPOSE = tuple(range(21))
 #: Windows overlap by half their side.
 _ROI_SIZES = (0.35, 0.6)
 _ROI_ROTATIONS = (0.0, math.pi / 2, -math.pi / 2)
+
+#: Crops of the confidence measure, relative to MediaPipe's own crop around the hand:
+#: (rotation in radians, scale of the side, shift along x and y in units of the side).
+CONFIDENCE_CROPS = (
+    (-0.3, 1.0, 0.0, 0.0), (-0.15, 1.0, 0.0, 0.0), (0.15, 1.0, 0.0, 0.0), (0.3, 1.0, 0.0, 0.0),
+    (0.0, 0.85, 0.0, 0.0), (0.0, 1.15, 0.0, 0.0),
+    (0.0, 1.0, 0.06, 0.0), (0.0, 1.0, -0.06, 0.0), (0.0, 1.0, 0.0, 0.06), (0.0, 1.0, 0.0, -0.06),
+)  # fmt: skip
+#: Spread (fraction of the hand's size) at which a keypoint's confidence is one half: about
+#: half a finger's width, the distance at which a keypoint lands on another part of the hand.
+SPREAD_SCALE = 0.05
+#: Fewest crops (of :data:`CONFIDENCE_CROPS`) in which the model must find the hand again for
+#: the spread to be measured at all.
+MIN_CONFIDENCE_CROPS = 5
 
 _ROI_GRAPH = """
 input_stream: "image"
@@ -342,6 +368,41 @@ class MediaPipeHands:
                 HandDetection(best.keypoints2d, best.keypoints3d, best.side, best.score, meta=meta)
             )
         return out_dets
+
+    def keypoint_spread(self, image: np.ndarray, detection: HandDetection) -> np.ndarray | None:
+        """(21,) spread of each keypoint of ``detection`` over the crops of
+        :data:`CONFIDENCE_CROPS`, as a fraction of the hand's size (the larger side of the
+        keypoints' box); None when the model finds the hand in fewer than
+        :data:`MIN_CONFIDENCE_CROPS` of them. The detection's own keypoints are one member."""
+        image = check_image(image)
+        kp = np.asarray(detection.keypoints2d, dtype=np.float64).reshape(-1, 2)
+        if kp.shape != (21, 2) or not np.isfinite(kp).all():
+            return None
+        size = float(np.ptp(kp, axis=0).max())
+        if not size > 0:
+            return None
+        h, w = image.shape[:2]
+        x, y, rw, rh, rot = roi_from_keypoints(kp, w, h)
+        found = [kp]
+        with silenced(2):
+            for d_rot, scale, dx, dy in CONFIDENCE_CROPS:
+                roi = (x + dx * rw, y + dy * rh, rw * scale, rh * scale, rot + d_rot)
+                out = self._run_roi(image, roi)
+                if out is not None:
+                    found.append(np.array([[p.x * w, p.y * h] for p in out.landmarks.landmark]))
+        if len(found) - 1 < MIN_CONFIDENCE_CROPS:
+            return None
+        pts = np.stack(found)[:, list(MEDIAPIPE_TO_OPENPOSE)]
+        centre = np.median(pts, axis=0)
+        return np.median(np.linalg.norm(pts - centre, axis=2), axis=0) / size
+
+    def keypoint_confidence(self, image: np.ndarray, detection: HandDetection) -> np.ndarray | None:
+        """(21,) confidences in (0, 1] from :meth:`keypoint_spread` (see the module notes), or
+        None when the spread cannot be measured."""
+        spread = self.keypoint_spread(image, detection)
+        if spread is None:
+            return None
+        return 1.0 / (1.0 + (spread / SPREAD_SCALE) ** 2)
 
     def detect(self, image: np.ndarray) -> list[HandDetection]:
         """All hands in an (H, W, 3) uint8 RGB image, most confident first.

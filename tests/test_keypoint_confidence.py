@@ -1,0 +1,119 @@
+"""Per-keypoint confidence of the MediaPipe detector: the spread of each keypoint over re-run
+crops, against a plain computation, and on a real photo."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mediapipe")
+
+from easyhoi.perception import mediapipe_hand as mph  # noqa: E402
+from easyhoi.perception.base import HandDetection  # noqa: E402
+
+
+def _hand(w=200.0, h=160.0):
+    """21 keypoints of an upright open hand in a w x h image."""
+    rng = np.random.default_rng(3)
+    kp = np.zeros((21, 2))
+    kp[0] = (w / 2, h * 0.8)
+    for f in range(5):
+        base = np.array([w / 2 + (f - 2) * 12.0, h * 0.55])
+        for j in range(4):
+            kp[1 + 4 * f + j] = base + (0.0, -12.0 * j)
+    return kp + rng.normal(0, 0.5, kp.shape)
+
+
+def _fake_model(outputs):
+    """A ``_run_roi`` that answers the calls in order with the given (21, 2) arrays (None: the
+    model finds no hand), recording the ROIs it was asked for."""
+    calls = []
+
+    def run(image, roi):
+        calls.append(roi)
+        kp = outputs[len(calls) - 1]
+        if kp is None:
+            return None
+        h, w = image.shape[:2]
+        marks = [SimpleNamespace(x=x / w, y=y / h) for x, y in kp]
+        return SimpleNamespace(landmarks=SimpleNamespace(landmark=marks))
+
+    return run, calls
+
+
+def test_spread_and_confidence_match_a_plain_computation(monkeypatch):
+    image = np.zeros((160, 200, 3), np.uint8)
+    kp = _hand()
+    det = HandDetection(kp, None, "right", 1.0)
+    rng = np.random.default_rng(0)
+    n = len(mph.CONFIDENCE_CROPS)
+    outputs = []
+    for i in range(n):
+        moved = kp.copy()
+        moved[0] += rng.normal(0, 8.0, 2)  # the wrist wanders from crop to crop
+        moved[8] += (0.0, 0.5 * i)  # the index tip drifts a little
+        outputs.append(moved)
+    outputs[2] = None  # one crop loses the hand
+    run, calls = _fake_model(outputs)
+    hands = mph.MediaPipeHands()
+    monkeypatch.setattr(hands, "_run_roi", run)
+    spread = hands.keypoint_spread(image, det)
+
+    members = [kp] + [o for o in outputs if o is not None]
+    size = float(np.ptp(kp, axis=0).max())
+    expect = np.empty(21)
+    for j in range(21):
+        pts = np.array([m[j] for m in members])
+        centre = np.array([np.median(pts[:, 0]), np.median(pts[:, 1])])
+        expect[j] = np.median([math.dist(p, centre) for p in pts]) / size
+    np.testing.assert_allclose(spread, expect, rtol=1e-9, atol=1e-12)
+    assert spread[0] > 5 * spread[12] and spread[8] > spread[12]
+    # one call per crop, each a perturbation of MediaPipe's own crop around the hand
+    assert len(calls) == n
+    x, y, rw, rh, rot = mph.roi_from_keypoints(kp, 200, 160)
+    for (d_rot, scale, dx, dy), roi in zip(mph.CONFIDENCE_CROPS, calls, strict=True):
+        expected = (x + dx * rw, y + dy * rh, rw * scale, rh * scale, rot + d_rot)
+        np.testing.assert_allclose(roi, expected, rtol=1e-12)
+
+    monkeypatch.setattr(hands, "_run_roi", _fake_model(outputs)[0])
+    conf = hands.keypoint_confidence(image, det)
+    np.testing.assert_allclose(conf, 1.0 / (1.0 + (expect / mph.SPREAD_SCALE) ** 2), rtol=1e-9)
+    assert conf.argmin() == 0 and 0 < conf.min() < conf.max() <= 1
+
+
+def test_no_spread_when_the_model_loses_the_hand(monkeypatch):
+    image = np.zeros((160, 200, 3), np.uint8)
+    kp = _hand()
+    det = HandDetection(kp, None, "right", 1.0)
+    n = len(mph.CONFIDENCE_CROPS)
+    keep = mph.MIN_CONFIDENCE_CROPS - 1
+    outputs = [kp.copy() if i < keep else None for i in range(n)]
+    hands = mph.MediaPipeHands()
+    monkeypatch.setattr(hands, "_run_roi", _fake_model(outputs)[0])
+    assert hands.keypoint_confidence(image, det) is None
+    outputs[keep] = kp.copy()  # one more crop finds it: measured, and all agree
+    monkeypatch.setattr(hands, "_run_roi", _fake_model(outputs)[0])
+    np.testing.assert_allclose(hands.keypoint_confidence(image, det), 1.0)
+    # a detection without usable keypoints has no spread
+    flat = HandDetection(np.zeros((21, 2)), None, "right", 1.0)
+    assert hands.keypoint_spread(image, flat) is None
+
+
+def test_confidence_on_a_photo(shared_data):
+    from easyhoi.io.image import load_image
+
+    image = load_image(shared_data / "images" / "hort-can.png").rgb
+    hands = mph.MediaPipeHands()
+    det = hands.detect(image)[0]
+    conf = hands.keypoint_confidence(image, det)
+    assert conf.shape == (21,) and np.isfinite(conf).all()
+    assert (conf > 0).all() and (conf <= 1).all()
+    # a clearly seen hand: most keypoints stay within the spread scale
+    assert np.median(conf) > 0.5
+    np.testing.assert_array_equal(conf, hands.keypoint_confidence(image, det))  # deterministic
+    # no hand in the picture any more: the crops find nothing to measure
+    grey = np.full_like(image, 128)
+    assert hands.keypoint_confidence(grey, det) is None
