@@ -242,8 +242,11 @@ def perceive(
         inpainted_image=inpainted,
         meta={
             "keypoints2d": np.asarray(chosen.keypoints2d).tolist(),
-            **({} if kp_confidence is None else
-               {"keypoints2d_confidence": np.round(kp_confidence, 4).tolist()}),
+            **(
+                {}
+                if kp_confidence is None
+                else {"keypoints2d_confidence": np.round(kp_confidence, 4).tolist()}
+            ),
             "hand_side": chosen.side,
             "detection": {k: v for k, v in chosen.meta.items() if _jsonable(v)},
             "perception": report.to_dict(),
