@@ -8,8 +8,9 @@ the amodal outline in a working frame (:mod:`.common`) and scored::
     score = IoU_w - complexity + edge_bonus - depth_penalty
 
 * ``IoU_w`` — weighted silhouette IoU of the re-projected hypothesis (:func:`.common.fit_iou`:
-  outline pixels hidden by the hand count as unknown, amodal completion counts half). For the
-  surface of revolution it is capped by the outline's mirror symmetry about the axis.
+  outline pixels hidden by the hand or beyond the photo's edge count as unknown, amodal
+  completion counts half). For the surface of revolution it is capped by the outline's mirror
+  symmetry about the axis.
 * ``complexity`` — :data:`COMPLEXITY`: families whose outline is free (slab, inflation) fit
   every outline and must not win against a family with few parameters that fits as well;
   among the parametric ones, the fewer parameters the smaller the penalty.

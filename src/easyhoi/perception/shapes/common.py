@@ -11,6 +11,9 @@ Silhouette fit (:func:`fit_iou`) is an IoU in which each pixel carries a weight:
 * amodal completion pixels (behind the hand, inferred): :data:`COMPLETION_WEIGHT`;
 * hand pixels outside the amodal mask: 0 — the object may or may not continue behind the
   hand, so a hypothesis that extends there is neither rewarded nor penalised;
+* pixels beyond the photo's edge: 0 — an object cut by the edge of the photo continues out
+  of it by an unknown amount (close-ups of a hand and what it holds often are), so the edge
+  is not its outline;
 * everything else (background, seen): 1.
 """
 
@@ -41,6 +44,7 @@ class WorkFrame:
         gray: (h, w) float grey image in [0, 1] or None (edge evidence).
         scale: source pixels per working pixel.
         offset: (2,) source pixel coordinates (u, v) of working pixel coordinate (0, 0).
+        inside: (h, w) bool working pixels inside the photo (None: all of them).
     """
 
     mask: np.ndarray
@@ -49,6 +53,7 @@ class WorkFrame:
     gray: np.ndarray | None
     scale: float
     offset: np.ndarray
+    inside: np.ndarray | None = None
 
     def to_source(self, uv: np.ndarray) -> np.ndarray:
         """(..., 2) working pixel coordinates -> source pixel coordinates."""
@@ -98,11 +103,14 @@ def work_frame(
     weight[m & ~vis] = COMPLETION_WEIGHT
     if occluder is not None:
         weight[(rs(occluder) >= 0.5) & ~m] = 0.0
+    inside = rs(np.ones(mask.shape, bool)) >= 0.5
+    weight[~inside] = 0.0
     gray = None
     if image is not None:
         g = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY).astype(np.float32)
         gray = _resample(g / 255.0, box, (side, side)).astype(np.float64)
-    return WorkFrame(m, vis, weight, gray, float(scale), np.array([box[0], box[1]], float))
+    offset = np.array([box[0], box[1]], float)
+    return WorkFrame(m, vis, weight, gray, float(scale), offset, inside)
 
 
 def work_resample(values: np.ndarray, wf: WorkFrame, source_mask: np.ndarray) -> np.ndarray:
