@@ -79,3 +79,32 @@ def test_contact_line_only_for_a_hand_apart_from_its_object():
     # a metric that could not be computed (None) is not reported as a gap
     assert contact_line({"in_contact": None}) is None
     assert contact_line({}) is None
+
+
+def test_uncertain_keypoints_are_named_as_keypoints_with_their_own_fix():
+    import numpy as np
+    import pytest
+
+    from easyhoi.perception.confidence import keypoints_confidence
+
+    conf = np.r_[np.full(12, 0.2), np.full(9, 0.9)]
+    kc = keypoints_confidence(conf)
+    assert kc.score == pytest.approx(0.2) and kc.low
+    assert kc.reasons == ("12 of 21 keypoints move when the detector's crop moves",)
+    sure = keypoints_confidence(np.linspace(0.05, 1.0, 21))
+    assert sure.score == pytest.approx(np.median(np.linspace(0.05, 1.0, 21))) and not sure.low
+    assert sure.reasons == ("10 of 21 keypoints move when the detector's crop moves",)
+    assert keypoints_confidence(np.ones(21)).reasons == ()
+    with pytest.raises(ValueError):
+        keypoints_confidence([np.nan] * 21)
+
+    rep = report(hand=(0.9, ()), keypoints=(kc.score, kc.reasons))
+    (line,) = low_confidence_lines(rep)
+    assert line == (
+        "low confidence in the hand's keypoints (score 0.20; weak: 12 of 21 keypoints move "
+        "when the detector's crop moves): the hand's pose may be wrong: give --hand-params "
+        "from another hand estimator, or use a photo where the hand is seen more clearly"
+    )
+    assert "--hand-params" in low_confidence_lines(rep, "batch")[0]
+    assert low_confidence_lines(rep, "demo")[0].endswith("where the hand is seen more clearly")
+    assert "hand's keypoints" in str(low_confidence_error(rep))

@@ -161,6 +161,18 @@ def test_the_detectors_keypoint_confidence_reaches_the_input(config, monkeypatch
     assert SureOfSome.asked == [pytest.approx(160.0, abs=2.0)]
     np.testing.assert_allclose(inp.meta["keypoints2d_confidence"], np.linspace(0.05, 1.0, 21))
     assert "keypoint confidence" in report.timings
+    # ... and the hand's keypoints as a whole get a confidence of their own (their median)
+    kc = inp.meta["perception"]["confidence"]["keypoints"]
+    assert kc["score"] == pytest.approx(np.median(np.linspace(0.05, 1.0, 21)), abs=1e-4)
+    assert not kc["low"] and kc["reasons"] == [
+        "10 of 21 keypoints move when the detector's crop moves"
+    ]
+    # a detector that cannot measure it (it loses the hand around its own keypoints): the
+    # keypoints are reported as unsure, and the optimizer weighs the joints alike
+    monkeypatch.setattr(SureOfSome, "keypoint_confidence", lambda self, image, hand: None)
+    inp, report = perceive(img, sure)
+    assert "keypoints2d_confidence" not in inp.meta
+    assert report.confidence["keypoints"].score == 0.0 and report.low_confidence == ["keypoints"]
 
 
 def test_grounded_sam_gets_both_model_folders(monkeypatch, tmp_path):

@@ -6,7 +6,8 @@ and the weak cues). These functions turn the JSON form of that report
 line and the web demo, so both say the same thing:
 
 * a low-confidence mask names its weak cues and the one gesture that fixes it: a point on the
-  held object for the object masks, a point on the holding hand for the hand mask;
+  held object for the object masks, a point on the holding hand for the hand mask; uncertain
+  hand keypoints say that the pose may be wrong and what can replace them;
 * a result that does not use the first detected hand says so, and why;
 * a result whose hand does not touch its object says so (:func:`contact_line`): the photo shows
   a held object, so a gap means the masks or the hand's keypoints are off, and the fix is the
@@ -23,15 +24,21 @@ _ADVICE = {
         "object": "re-run with --object-point X,Y on the held object "
         "(or --object-box X0,Y0,X1,Y1 around it)",
         "hand": "re-run with --hand-point X,Y on the hand that holds the object",
+        "keypoints": "the hand's pose may be wrong: give --hand-params from another hand "
+        "estimator, or use a photo where the hand is seen more clearly",
     },
     "batch": {
         "object": "give the photo an object_point on the held object in the --prompts file",
         "hand": "give the photo a hand_point on the hand that holds the object in the --prompts "
         "file",
+        "keypoints": "the hand's pose may be wrong: reconstruct the photo alone with "
+        "--hand-params from another hand estimator",
     },
     "demo": {
         "object": "click on the held object in the photo and run again",
         "hand": "choose 'hand' and click on the hand that holds the object, then run again",
+        "keypoints": "the hand's pose may be wrong: use a photo where the hand is seen more "
+        "clearly",
     },
 }
 _ADVICE_MORE = {
@@ -42,11 +49,12 @@ _ADVICE_MORE = {
 
 
 def advice(mask: str, where: str = "cli", prompted: bool = False) -> str:
-    """What to do about a weak ``mask`` ("hand", "object", "amodal"), for ``where``.
+    """What to do about a weak ``mask`` ("hand", "object", "amodal", or the hand's
+    "keypoints"), for ``where``.
 
     ``prompted``: the object was already pointed at (then: more points, or a box).
     """
-    kind = "hand" if mask == "hand" else "object"
+    kind = mask if mask in ("hand", "keypoints") else "object"
     if kind == "object" and prompted:
         return _ADVICE_MORE[where]
     return _ADVICE[where][kind]
@@ -59,8 +67,9 @@ def low_confidence_lines(perception: dict, where: str = "cli", prompted: bool = 
         if not conf.get("low"):
             continue
         reasons = "; ".join(conf.get("reasons") or ()) or "no cue stood out"
+        what = "the hand's keypoints" if name == "keypoints" else f"the {name} mask"
         lines.append(
-            f"low confidence in the {name} mask (score {float(conf['score']):.2f}; weak: "
+            f"low confidence in {what} (score {float(conf['score']):.2f}; weak: "
             f"{reasons}): {advice(name, where, prompted)}"
         )
     return lines
