@@ -283,7 +283,7 @@ def test_help_lists_the_strict_exit_code(capsys):
     with pytest.raises(SystemExit):
         main(["--help"])
     out = capsys.readouterr().out
-    assert "    9  --strict and a mask has low confidence (nothing written)" in out
+    assert "    9  --strict and a mask or the keypoints scored low (nothing written)" in out
     with pytest.raises(SystemExit):
         main(["reconstruct", "--help"])
     out = capsys.readouterr().out

@@ -150,3 +150,19 @@ def test_bad_folders_are_refused_before_any_work(scene, tmp_path, name, monkeypa
     with pytest.raises((InvalidInputError, NotADirectoryError, FileExistsError)):
         write_result_folder(result, inp, tmp_path / name)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_perception_section_names_the_keypoints_row():
+    meta = {
+        "perception": {
+            "confidence": {
+                "hand": {"score": 0.9, "low": False, "reasons": []},
+                "keypoints": {"score": 0.2, "low": True, "reasons": ["21 of 21 keypoints move"]},
+            }
+        }
+    }
+    section = report_mod._perception_html(meta)
+    assert "<th>of</th>" in section
+    assert "<td>hand</td>" in section
+    assert "<td>hand keypoints</td>" in section and "<td>21 of 21 keypoints move</td>" in section
+    assert "<td>keypoints</td>" not in section

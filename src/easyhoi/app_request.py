@@ -95,7 +95,8 @@ class DemoResult:
         folder: the result folder.
         seconds: wall time of the request.
         warnings: sentences about perception the user must read: the hand used is not the
-            first detected one, a mask has low confidence (with the click that fixes it).
+            first detected one, a mask or the hand's keypoints have low confidence (with what
+            fixes it).
     """
 
     ok: bool

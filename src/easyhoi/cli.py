@@ -610,7 +610,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--object-box", metavar="X0,Y0,X1,Y1", help="a box around the held object")
     p.add_argument("--hand-point", metavar="X,Y", help="a pixel on the hand holding the object")
     p.add_argument("--strict", action="store_true",
-                   help="exit 9, writing nothing, when a mask has low confidence")  # fmt: skip
+                   help="exit 9, writing nothing, when a mask or the hand's keypoints have low "
+                   "confidence")  # fmt: skip
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing result folder (default: refuse, exit 2)")  # fmt: skip
     p.add_argument("--set", action="append", metavar="KEY=VALUE",

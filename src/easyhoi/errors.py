@@ -62,7 +62,7 @@ EXIT_CODE_MEANINGS: dict[ExitCode, str] = {
     ExitCode.NO_OBJECT: "a hand but no held object found",
     ExitCode.OPTIMIZATION: "the optimizer could not produce a valid result",
     ExitCode.BATCH_PARTIAL: "some photos of a batch failed (see its manifest)",
-    ExitCode.LOW_CONFIDENCE: "--strict and a mask has low confidence (nothing written)",
+    ExitCode.LOW_CONFIDENCE: "--strict and a mask or the keypoints scored low (nothing written)",
     ExitCode.RESOURCE: "out of a resource: disk full, out of memory, or an input too large",
     ExitCode.OUTPUT_BUSY: "the output folder is in use by another easyhoi run",
     ExitCode.INTERNAL: "internal error, a bug: please report it with the --verbose output",
@@ -162,7 +162,8 @@ class OptimizationError(EasyHOIError, RuntimeError):
 
 
 class LowConfidenceError(EasyHOIError):
-    """Perception is unsure of a mask and the caller asked for certainty (``--strict``)."""
+    """Perception is unsure of a mask or of the hand's keypoints and the caller asked for
+    certainty (``--strict``)."""
 
     exit_code = ExitCode.LOW_CONFIDENCE
 

@@ -86,14 +86,16 @@ def _flatten(d: Mapping, prefix: str = "") -> list[tuple[str, object]]:
 
 
 def _perception_html(meta: Mapping) -> str:
-    """Perception's confidence per mask (score, low, weak cues), the hand used and the prompts."""
+    """Perception's confidence per mask and in the hand's keypoints (score, low, weak cues),
+    the hand used and the prompts."""
     perception = meta.get("perception") or {}
     rows = [
-        (name, c.get("score"), "yes" if c.get("low") else "no", "; ".join(c.get("reasons") or ()))
+        ("hand keypoints" if name == "keypoints" else name, c.get("score"),
+         "yes" if c.get("low") else "no", "; ".join(c.get("reasons") or ()))
         for name, c in (perception.get("confidence") or {}).items()
-    ]
+    ]  # fmt: skip
     parts = ["<h2>Perception confidence</h2>",
-             _table(rows, ("mask", "score", "low", "weak cues"))]  # fmt: skip
+             _table(rows, ("of", "score", "low", "weak cues"))]  # fmt: skip
     facts = []
     if perception.get("hand_index") is not None:
         facts.append(
