@@ -101,8 +101,9 @@ def test_prompts_outside_the_image_and_unprompted_segmenters_are_refused(config)
     assert Recording.calls == []
 
 
-def test_the_segmenters_confidence_reaches_the_report(config, monkeypatch):
-    from easyhoi.perception.confidence import MaskConfidence
+def right_hand_holds(confidence=None):
+    """A segmenter class whose right hand holds an object (box at x 120-170, the hand beside
+    it), reporting ``confidence`` (mask name -> MaskConfidence) when given."""
 
     class Rated:
         def segment(self, image, hand, prompts=None):
@@ -111,10 +112,17 @@ def test_the_segmenters_confidence_reaches_the_report(config, monkeypatch):
             hand_mask = np.zeros_like(obj)
             hand_mask[30:70, 140:180] = True
             hand_mask &= ~obj
-            conf = {"hand": MaskConfidence(0.8), "object": MaskConfidence(0.3, ("faint edge",))}
-            return Segmentation(hand_mask, obj, hand.side == "right", confidence=conf)
+            return Segmentation(hand_mask, obj, hand.side == "right",
+                                confidence=dict(confidence or {}))  # fmt: skip
 
-    monkeypatch.setitem(base._REGISTRY["segmenter"], "rated", Rated)
+    return Rated
+
+
+def test_the_segmenters_confidence_reaches_the_report(config, monkeypatch):
+    from easyhoi.perception.confidence import MaskConfidence
+
+    conf = {"hand": MaskConfidence(0.8), "object": MaskConfidence(0.3, ("faint edge",))}
+    monkeypatch.setitem(base._REGISTRY["segmenter"], "rated", right_hand_holds(conf))
     rated = replace(config, perception=replace(config.perception, segmenter="rated"))
     img = np.random.default_rng(0).integers(0, 255, (100, 200, 3), dtype=np.uint8)
     inp, report = perceive(img, rated)
@@ -134,14 +142,6 @@ def test_the_segmenters_confidence_reaches_the_report(config, monkeypatch):
 
 
 def test_the_detectors_keypoint_confidence_reaches_the_input(config, monkeypatch):
-    class Rated:
-        def segment(self, image, hand, prompts=None):
-            obj = np.zeros(image.shape[:2], bool)
-            obj[30:70, 120:150] = True
-            hand_mask = np.zeros_like(obj)
-            hand_mask[30:70, 150:180] = True
-            return Segmentation(hand_mask, obj, hand.side == "right")
-
     class SureOfSome(TwoHands):
         asked: list = []
 
@@ -149,7 +149,7 @@ def test_the_detectors_keypoint_confidence_reaches_the_input(config, monkeypatch
             SureOfSome.asked.append(float(hand.keypoints2d[:, 0].mean()))
             return np.linspace(0.05, 1.0, 21)
 
-    monkeypatch.setitem(base._REGISTRY["segmenter"], "rated", Rated)
+    monkeypatch.setitem(base._REGISTRY["segmenter"], "rated", right_hand_holds())
     monkeypatch.setitem(base._REGISTRY["hand"], "sure-of-some", SureOfSome)
     rated = replace(config, perception=replace(config.perception, segmenter="rated"))
     img = np.random.default_rng(0).integers(0, 255, (100, 200, 3), dtype=np.uint8)

@@ -29,7 +29,7 @@ from easyhoi.config import EasyHOIConfig
 from easyhoi.errors import InvalidInputError, NoHandError, NoObjectError
 from easyhoi.hoi import HOIInput
 from easyhoi.perception.base import HandDetection, Segmentation, create
-from easyhoi.perception.confidence import MaskConfidence, keypoints_confidence
+from easyhoi.perception.confidence import keypoints_confidence
 from easyhoi.perception.prompts import Prompts
 from easyhoi.settings import RunSettings, resolve_run
 
@@ -201,11 +201,7 @@ def perceive(
     kp_confidence = None
     if pv.hand is None and hasattr(detector, "keypoint_confidence"):
         kp_confidence = timed("keypoint confidence", detector.keypoint_confidence, image, chosen)
-        report.confidence["keypoints"] = (
-            keypoints_confidence(kp_confidence)
-            if kp_confidence is not None
-            else MaskConfidence(0.0, ("the detector does not find the hand again around them",))
-        )
+        report.confidence["keypoints"] = keypoints_confidence(kp_confidence)
 
     inpainter = _backend(pc, "inpainter", pc.inpainter, seed, run.device)
     inpainted = timed("inpainting", inpainter.inpaint, image, seg.hand_mask)

@@ -44,7 +44,10 @@ def keypoints_confidence(confidences) -> MaskConfidence:
     detector's, e.g. :meth:`~easyhoi.perception.mediapipe_hand.MediaPipeHands.
     keypoint_confidence`). Low when most keypoints are unsure: the hand's pose, which the
     optimizer keeps close to them, is then a guess. Keypoints below :data:`LOW_CONFIDENCE` are
-    counted in the reason."""
+    counted in the reason. ``None`` (the detector could not measure them: it does not find the
+    hand again around its own keypoints) scores 0."""
+    if confidences is None:
+        return MaskConfidence(0.0, ("the detector does not find the hand again around them",))
     c = np.asarray(confidences, dtype=np.float64).reshape(-1)
     if c.size == 0 or not np.isfinite(c).all():
         raise ValueError("keypoint confidences must be finite values")

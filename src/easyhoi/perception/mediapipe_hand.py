@@ -190,6 +190,12 @@ def _register_lean() -> None:
         raise
 
 
+def landmark_pixels(landmarks, width: int, height: int) -> np.ndarray:
+    """(21, 2) pixel keypoints in OpenPose order from MediaPipe's normalised landmarks."""
+    kp = np.array([[p.x * width, p.y * height] for p in landmarks.landmark], dtype=np.float64)
+    return kp[list(MEDIAPIPE_TO_OPENPOSE)]
+
+
 def roi_from_keypoints(kp: np.ndarray, width: int, height: int) -> tuple[float, ...]:
     """Square, rotated crop around (21, 2) pixel keypoints, fingers pointing up in the crop.
 
@@ -254,8 +260,7 @@ class MediaPipeHands:
         return "left" if label == "right" else "right"
 
     def _make(self, lms, wlms, handed, w: int, h: int, pass_name: str, **meta) -> HandDetection:
-        kp = np.array([[p.x * w, p.y * h] for p in lms.landmark], dtype=np.float64)
-        kp = kp[list(MEDIAPIPE_TO_OPENPOSE)]
+        kp = landmark_pixels(lms, w, h)
         k3 = None
         if wlms is not None:
             k3 = np.array([[p.x, p.y, p.z] for p in wlms.landmark], dtype=np.float64)
@@ -334,7 +339,7 @@ class MediaPipeHands:
                             hits.append(out)
         refined = []
         for out in hits:
-            kp = np.array([[p.x * w, p.y * h] for p in out.landmarks.landmark])
+            kp = landmark_pixels(out.landmarks, w, h)
             nxt = self._run_roi(image, roi_from_keypoints(kp, w, h))
             if nxt is not None:
                 refined.append(nxt)
@@ -389,10 +394,10 @@ class MediaPipeHands:
                 roi = (x + dx * rw, y + dy * rh, rw * scale, rh * scale, rot + d_rot)
                 out = self._run_roi(image, roi)
                 if out is not None:
-                    found.append(np.array([[p.x * w, p.y * h] for p in out.landmarks.landmark]))
+                    found.append(landmark_pixels(out.landmarks, w, h))
         if len(found) - 1 < MIN_CONFIDENCE_CROPS:
             return None
-        pts = np.stack(found)[:, list(MEDIAPIPE_TO_OPENPOSE)]
+        pts = np.stack(found)
         centre = np.median(pts, axis=0)
         return np.median(np.linalg.norm(pts - centre, axis=2), axis=0) / size
 
