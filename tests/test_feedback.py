@@ -95,6 +95,9 @@ def test_uncertain_keypoints_are_named_as_keypoints_with_their_own_fix():
     assert sure.score == pytest.approx(np.median(np.linspace(0.05, 1.0, 21))) and not sure.low
     assert sure.reasons == ("10 of 21 keypoints move when the detector's crop moves",)
     assert keypoints_confidence(np.ones(21)).reasons == ()
+    lost = keypoints_confidence(None)  # the detector could not measure them
+    assert lost.score == 0.0 and lost.low
+    assert lost.reasons == ("the detector does not find the hand again around them",)
     with pytest.raises(ValueError):
         keypoints_confidence([np.nan] * 21)
 
