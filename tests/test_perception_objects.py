@@ -206,3 +206,24 @@ def test_registered():
     from easyhoi.perception import base
 
     assert base._REGISTRY["object"]["silhouette"] is SilhouetteReconstructor
+
+
+@pytest.mark.parametrize("thickness", [2.5, 4.5, 10.0])
+def test_thin_slab_keeps_its_whole_outline(thickness):
+    """A slab a few working pixels thin is closed as built; merging its coincident rim vertices
+    used to split it into pieces, and the repair kept the largest (a fraction of the outline)."""
+    import trimesh
+
+    from easyhoi.perception.objects import canonical_mesh
+    from easyhoi.perception.shapes.inflation import implicit_slab_mesh
+    from easyhoi.perception.shapes.slab import slab_h2
+
+    m = np.zeros((96, 96), bool)
+    m[10:60, 5:80] = True
+    verts, faces = implicit_slab_mesh(m, slab_h2(m, thickness), max_faces=6000)
+    # the condition the fallback exists for: merged, the surface is no longer closed
+    assert not trimesh.Trimesh(verts, faces, process=True).is_watertight
+    mesh = canonical_mesh(verts, faces, {})
+    assert mesh.is_watertight and mesh.volume > 0
+    size = mesh.extents * mesh.metadata["easyhoi"]["pixels_per_unit"]
+    np.testing.assert_allclose(size, [75, 50, thickness], rtol=0.03)

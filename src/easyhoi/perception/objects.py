@@ -117,7 +117,14 @@ def canonical_mesh(verts_px: np.ndarray, faces: np.ndarray, meta: dict) -> trime
     """
     mesh = trimesh.Trimesh(verts_px, faces, process=True)
     if not (mesh.is_watertight and mesh.is_winding_consistent):
-        mesh = _repair(mesh)  # TODO: swap for geometry.watertight.make_watertight
+        # merging coincident vertices can join two sheets where a thin slab's faces meet at
+        # its rim (both at the mid-surface there): the surface as built may be closed already
+        raw = trimesh.Trimesh(verts_px, faces, process=False)
+        if raw.is_watertight and raw.is_winding_consistent:
+            raw.remove_unreferenced_vertices()
+            mesh = raw
+        else:
+            mesh = _repair(mesh)  # TODO: swap for geometry.watertight.make_watertight
     if mesh.volume < 0:
         mesh.invert()
     lo, hi = mesh.bounds
