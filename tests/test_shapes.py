@@ -9,7 +9,14 @@ from scipy.spatial.transform import Rotation
 
 from easyhoi.perception.objects import SilhouetteReconstructor
 from easyhoi.perception.shapes import common, cuboid, inflation, superquadric
-from easyhoi.perception.shapes.hand_cues import PAD_M, hand_cues
+from easyhoi.perception.shapes.hand_cues import (
+    PAD_M,
+    PINCH_CONFIDENCE,
+    PINCH_MIN_VIEW,
+    TIP_PAD_M,
+    hand_cues,
+    pinch_aperture,
+)
 from tests.test_perception_objects import check_canonical, iou, silhouette
 
 
@@ -146,13 +153,90 @@ def test_hand_cues_scale_and_thickness():
     assert set(c.front) == {2, 3, 4} and set(c.behind) == {8, 12, 16}
     assert c.depth_m == pytest.approx(0.012, abs=1e-9)
     assert c.confidence == 1.0
+    # the hand mask over every keypoint: no two-sided gap; the thumb's tip and the middle
+    # fingertip still pinch the phone along the view, and their aperture is the fallback
     one_sided = hand_cues(k2, k3, m, np.ones_like(m))
-    assert one_sided.depth_m is None and one_sided.confidence == 0.0
+    aperture = float(np.linalg.norm(k3[12] - k3[4]))
+    assert one_sided.front == (4,) and one_sided.behind == (12,)
+    assert one_sided.depth_m == pytest.approx(aperture - 2 * TIP_PAD_M, abs=1e-12)
+    assert one_sided.confidence == PINCH_CONFIDENCE
     assert hand_cues(k2[:5], k3, m, hand) is None
     # a keypoint near the rim (less than 0.3 inscribed radii inside) does not count
     k2_rim = k2.copy()
     k2_rim[2] = [m.nonzero()[1].min() + 3, 120.0]
     assert 2 not in hand_cues(k2_rim, k3, m, hand).front
+
+
+def pinched_card(thickness_m=0.004, s=1000.0, offset_m=(0.0, 0.0), view=True):
+    """A 12 x 8 cm card face-on, pinched by the thumb's tip in front and the index fingertip
+    behind (``view``; else both beside each other across the image), the rest of the hand to
+    its left and the visible hand mask over every keypoint (it cannot tell the finger behind).
+
+    Returns the card's mask, the hand mask, (21, 2) pixel and (21, 3) metric keypoints.
+    """
+    H, W = 200, 260
+    origin = np.array([150.0, 100.0])
+    rng = np.random.default_rng(1)
+    k3 = np.zeros((21, 3))
+    k3[:, 0] = rng.uniform(-0.13, -0.10, 21)
+    k3[:, 1] = rng.uniform(-0.02, 0.02, 21)
+    k3[:, 2] = rng.uniform(-0.02, 0.02, 21)
+    half = thickness_m / 2 + TIP_PAD_M
+    if view:
+        k3[4] = [-0.04, 0.0, -half]
+        k3[8] = [-0.04 + offset_m[0], offset_m[1], half]
+    else:  # both fingertips on the card's face, 3 cm apart across the image
+        k3[4] = [-0.05, 0.0, -half]
+        k3[8] = [-0.02, 0.0, -half]
+    k3[12] = [-0.09, 0.03, 0.0]
+    k2 = k3[:, :2] * s + origin
+    m = np.zeros((H, W), np.uint8)
+    p0 = np.round(np.array([-0.06, -0.04]) * s + origin).astype(int)
+    p1 = np.round(np.array([0.06, 0.04]) * s + origin).astype(int) - 1
+    cv2.rectangle(m, tuple(int(x) for x in p0), tuple(int(x) for x in p1), 1, -1)
+    hand = np.zeros((H, W), np.uint8)
+    for i in range(21):
+        cv2.circle(hand, tuple(int(x) for x in k2[i]), 6, 1, -1)
+    return m.astype(bool), hand.astype(bool), k2, k3 - k3.mean(0)
+
+
+def test_pinch_aperture_gives_the_thickness_along_the_view():
+    m, hand, k2, k3 = pinched_card(0.004, s=900.0)
+    c = hand_cues(k2, k3, m, hand)
+    assert c.depth_m == pytest.approx(0.004, abs=1e-12)
+    assert c.confidence == PINCH_CONFIDENCE
+    assert c.front == (4,) and c.behind == (8,)
+    np.testing.assert_allclose(c.grip_px, 0.5 * (k2[4] + k2[8]))
+    # slightly across the image: the aperture's length, less the pads
+    m, hand, k2, k3 = pinched_card(0.004, s=900.0, offset_m=(0.003, 0.004))
+    want = float(np.hypot(0.005, 0.004 + 2 * TIP_PAD_M)) - 2 * TIP_PAD_M
+    assert hand_cues(k2, k3, m, hand).depth_m == pytest.approx(want, abs=1e-12)
+    # a pinch mostly across the image measures a width, not the depth
+    m, hand, k2, k3 = pinched_card(0.004, s=900.0, view=False)
+    a = k3[8] - k3[4]
+    assert abs(a[2]) < PINCH_MIN_VIEW * np.linalg.norm(a)
+    assert hand_cues(k2, k3, m, hand).depth_m is None
+    # a fingertip at or beyond the outline's edge pinches a rim or something else
+    m, hand, k2, k3 = pinched_card(0.004, s=900.0)
+    assert pinch_aperture(k2, k3, m) is not None
+    for du in (-4, -20):
+        k2_off = k2.copy()
+        k2_off[8] = [150 - 0.06 * 900 + du, 100.0]
+        assert pinch_aperture(k2_off, k3, m) is None
+    assert pinch_aperture(k2, k3, np.zeros_like(m)) is None
+
+
+def test_slab_from_a_pinch_with_metric_size():
+    m, hand, k2, k3 = pinched_card(0.004, s=1000.0)
+    mesh = SilhouetteReconstructor().reconstruct(
+        None, m, visible_mask=m & ~hand, hand_mask=hand, hand_keypoints2d=k2,
+        hand_keypoints3d=k3,
+    )  # fmt: skip
+    md = mesh.metadata["easyhoi"]
+    assert md["method"] == "slab" and md["shape"]["flat_by_grip"]
+    ext_m = np.sort(mesh.extents * md["meters_per_unit"])
+    assert ext_m[0] == pytest.approx(0.004, rel=0.1)
+    assert ext_m[1:] == pytest.approx([0.08, 0.12], rel=0.05)
 
 
 def test_slab_from_a_flat_grip_with_metric_size():

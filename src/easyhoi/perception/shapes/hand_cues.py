@@ -19,8 +19,23 @@ the fitted hand model — a hand model has a known size, so its keypoints are me
   radius r, a finger that projects that far inside touches within 44 degrees of the pole facing
   it, so front and back fingers are at least 1.4 r apart and a round object is not mistaken for a
   flat one. It holds for any grasp type (pinch, power wrap, lateral) as long as the hand holds the
-  object from both sides along the view; when the whole hand is on one side the cue is absent.
+  object from both sides along the view; when the whole hand is on one side the gap is absent
+  (a pinch may still give the thickness, below).
   ``confidence`` grows with the number of keypoints on the lesser side (1 with three or more).
+* **Pinch aperture.** The hand mask cannot always tell a finger hidden behind the object from
+  one in front of it (the mask is grown from the skeleton), and most grasps hold the object at
+  its edge, where few keypoints lie well inside the outline; then the gap above is absent. A
+  pinch still measures the object: the thumb opposes the index or middle finger across it, so
+  the distance between the thumb's tip and the nearer of the two fingertips, less the pads of
+  both (:data:`TIP_PAD_M` each), is the object's thickness between them. It counts as the
+  thickness along the view only when the pinch runs mostly along the view (at least
+  :data:`PINCH_MIN_VIEW` of the aperture along the camera axis: front face to back face; a
+  pinch across the image measures a width the outline already shows) and when both fingertips
+  and their midpoint project inside the outline: a fingertip pressing a face lies over it, in
+  front of it or hidden behind it, while fingertips at the outline's edge pinch a rim or a
+  wall (a bowl's, a cup's), whose thickness is not the object's. Its confidence is
+  :data:`PINCH_CONFIDENCE`, below the two-sided gap's: the cue rests on the depth of two
+  keypoints alone.
 * **Tilt of an elongated object.** The silhouette cannot tell an object lying parallel to the
   image from a longer one tilted towards the camera. The keypoints that project inside the
   outline touch the object (or lie across it), so their depths follow the object's axis: in
@@ -48,6 +63,11 @@ INTERIOR_FRACTION = 0.3
 PAD_M = 0.009
 #: Tilt cue (module docs): keypoints inside the outline, their spread along the axis (metres),
 #: the outline's aspect ratio, and the largest tilt out of the image (degrees).
+#: Pinch aperture (module docs): a fingertip keypoint's distance to the pad surface it presses
+#: with (metres), the least share of the aperture along the view, and the cue's confidence.
+TIP_PAD_M = 0.005
+PINCH_MIN_VIEW = 0.6
+PINCH_CONFIDENCE = 0.6
 TILT_MIN_KEYPOINTS = 3
 TILT_MIN_SPREAD_M = 0.02
 TILT_MIN_ASPECT = 2.0
@@ -133,9 +153,17 @@ def hand_cues(keypoints2d, keypoints3d, object_mask=None, hand_mask=None) -> Han
             (front if win.mean() >= 0.5 else behind).append(i)
     axis, slope = None, 0.0
     if not front or not behind:
-        if object_mask is not None and hand_mask is not None and object_mask.any():
+        if object_mask is None or hand_mask is None or not object_mask.any():
+            return HandCues(s, None, None, 0.0, 0.0, tuple(front), tuple(behind))
+        pinch = pinch_aperture(k2, k3, object_mask)
+        if pinch is None:
             axis, slope = axis_slope(k2, z, s, object_mask, hand_mask, 0.0)
-        return HandCues(s, None, None, 0.0, 0.0, tuple(front), tuple(behind), axis, slope)
+            return HandCues(s, None, None, 0.0, 0.0, tuple(front), tuple(behind), axis, slope)
+        depth, grip, pair = pinch
+        axis, slope = axis_slope(k2, z, s, object_mask, hand_mask, depth)
+        near, far = sorted(pair, key=lambda i: z[i])
+        return HandCues(s, grip, depth, PINCH_CONFIDENCE, float(z[list(pair)].mean()), (near,),
+                        (far,), axis, slope)  # fmt: skip
     zf, zb = float(np.median(z[front])), float(np.median(z[behind]))
     depth = zb - zf - 2 * PAD_M
     if depth <= 0:  # inconsistent ordering (keypoint noise): no cue
@@ -145,6 +173,30 @@ def hand_cues(keypoints2d, keypoints3d, object_mask=None, hand_mask=None) -> Han
     grip = 0.5 * (k2[front].mean(0) + k2[behind].mean(0))
     return HandCues(s, grip, depth, conf, 0.5 * (zf + zb), tuple(front), tuple(behind), axis,
                     slope)  # fmt: skip
+
+
+def pinch_aperture(k2, k3, object_mask) -> tuple[float, np.ndarray, tuple] | None:
+    """(thickness in metres, grip pixel, (thumb tip, fingertip)) of a pinch across the object
+    along the view, or None (module docs, "Pinch aperture").
+
+    Args:
+        k2: (21, 2) keypoints in pixels; k3: (21, 3) metric keypoints (camera-aligned).
+        object_mask: (H, W) bool amodal object mask.
+    """
+    thumb = 4
+    j = min((8, 12), key=lambda f: float(np.linalg.norm(k3[f] - k3[thumb])))
+    a = k3[j] - k3[thumb]
+    aperture = float(np.linalg.norm(a))
+    if aperture <= 0 or abs(float(a[2])) < PINCH_MIN_VIEW * aperture:
+        return None
+    H, W = object_mask.shape
+    grip = 0.5 * (k2[thumb] + k2[j])
+    for p in (k2[thumb], k2[j], grip):
+        r, c = int(np.floor(p[1])), int(np.floor(p[0]))
+        if not (0 <= r < H and 0 <= c < W and object_mask[r, c]):
+            return None
+    depth = max(aperture - 2 * TIP_PAD_M, 0.002)
+    return depth, grip, (thumb, j)
 
 
 def axis_slope(
