@@ -152,14 +152,14 @@ def test_hand_cues_scale_and_thickness():
     assert c.px_per_m == pytest.approx(800.0, rel=1e-9)
     assert set(c.front) == {2, 3, 4} and set(c.behind) == {8, 12, 16}
     assert c.depth_m == pytest.approx(0.012, abs=1e-9)
-    assert c.confidence == 1.0
+    assert c.confidence == 1.0 and c.depth_from == "gap"
     # the hand mask over every keypoint: no two-sided gap; the thumb's tip and the middle
     # fingertip still pinch the phone along the view, and their aperture is the fallback
     one_sided = hand_cues(k2, k3, m, np.ones_like(m))
     aperture = float(np.linalg.norm(k3[12] - k3[4]))
     assert one_sided.front == (4,) and one_sided.behind == (12,)
     assert one_sided.depth_m == pytest.approx(aperture - 2 * TIP_PAD_M, abs=1e-12)
-    assert one_sided.confidence == PINCH_CONFIDENCE
+    assert one_sided.confidence == PINCH_CONFIDENCE and one_sided.depth_from == "pinch"
     assert hand_cues(k2[:5], k3, m, hand) is None
     # a keypoint near the rim (less than 0.3 inscribed radii inside) does not count
     k2_rim = k2.copy()
@@ -234,6 +234,7 @@ def test_slab_from_a_pinch_with_metric_size():
     )  # fmt: skip
     md = mesh.metadata["easyhoi"]
     assert md["method"] == "slab" and md["shape"]["flat_by_grip"]
+    assert md["shape"]["depth_cue_from"] == "pinch" and md["hand_cues"]["depth_from"] == "pinch"
     ext_m = np.sort(mesh.extents * md["meters_per_unit"])
     assert ext_m[0] == pytest.approx(0.004, rel=0.1)
     assert ext_m[1:] == pytest.approx([0.08, 0.12], rel=0.05)

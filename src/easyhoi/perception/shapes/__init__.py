@@ -224,6 +224,7 @@ def fit_shape(
         "scores": {h.name: h.info for h in hyps},
         "depth_cue_px": None if t_obs is None else round(t_obs * wf.scale, 3),
         "depth_cue_confidence": conf,
+        "depth_cue_from": None if t_obs is None else cues.depth_from,
         "flat_by_grip": bool(flat),
         "tilt_deg": round(float(np.degrees(np.arctan(slope))), 2),
     }

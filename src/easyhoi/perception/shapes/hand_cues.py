@@ -88,6 +88,8 @@ class HandCues:
         axis_px: (2,) unit long axis of the outline in the image (u, v), or None.
         axis_slope: the object's axis slope out of the image along ``axis_px`` (dz / ds, z away
             from the camera); 0 when the cue is absent.
+        depth_from: where ``depth_m`` comes from: "gap" (keypoints in front of and behind the
+            object), "pinch" (the pinch aperture) or None.
     """
 
     px_per_m: float
@@ -99,6 +101,7 @@ class HandCues:
     behind: tuple = ()
     axis_px: np.ndarray | None = None
     axis_slope: float = 0.0
+    depth_from: str | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -109,6 +112,7 @@ class HandCues:
             "front": list(self.front),
             "behind": list(self.behind),
             "axis_slope": round(self.axis_slope, 4),
+            "depth_from": self.depth_from,
         }
 
 
@@ -163,7 +167,7 @@ def hand_cues(keypoints2d, keypoints3d, object_mask=None, hand_mask=None) -> Han
         axis, slope = axis_slope(k2, z, s, object_mask, hand_mask, depth)
         near, far = sorted(pair, key=lambda i: z[i])
         return HandCues(s, grip, depth, PINCH_CONFIDENCE, float(z[list(pair)].mean()), (near,),
-                        (far,), axis, slope)  # fmt: skip
+                        (far,), axis, slope, "pinch")  # fmt: skip
     zf, zb = float(np.median(z[front])), float(np.median(z[behind]))
     depth = zb - zf - 2 * PAD_M
     if depth <= 0:  # inconsistent ordering (keypoint noise): no cue
@@ -172,7 +176,7 @@ def hand_cues(keypoints2d, keypoints3d, object_mask=None, hand_mask=None) -> Han
     conf = float(min(1.0, min(len(front), len(behind)) / 3))
     grip = 0.5 * (k2[front].mean(0) + k2[behind].mean(0))
     return HandCues(s, grip, depth, conf, 0.5 * (zf + zb), tuple(front), tuple(behind), axis,
-                    slope)  # fmt: skip
+                    slope, "gap")  # fmt: skip
 
 
 def pinch_aperture(k2, k3, object_mask) -> tuple[float, np.ndarray, tuple] | None:
