@@ -113,3 +113,22 @@ def test_held_object_matches_the_reference(results, name):
     assert not (seg.object_mask & seg.hand_mask).any()
     _, seg1, _, _ = segment_hands(rgb, res["hands"], segmenter, Prompts(object_points=(point,)))
     assert mask_iou(seg1.object_mask, ref) >= 0.5, name
+
+
+def test_pinched_cardboard_airplane_is_a_thin_slab():
+    """The whole chain on the cardboard airplane: the thumb and the index finger pinch it front
+    to back, so the object is a slab as thin as the pinch (not an inflated pillow)."""
+    from tests.conftest import SHARED_DATA
+
+    photo = SHARED_DATA / "images" / "easyhoi-airplane.jpg"
+    if not photo.is_file():
+        pytest.skip("shared photos not available")
+    from easyhoi.perception.chain import perceive
+
+    inp, _ = perceive(load_image(photo).rgb)
+    shape = inp.meta["object_shape"]
+    assert shape["shape"] == "slab" and shape["flat_by_grip"]
+    assert shape["depth_cue_from"] == "pinch"
+    md = inp.object_mesh.metadata["easyhoi"]
+    thickness_m = float(np.sort(inp.object_mesh.extents)[0]) * md["meters_per_unit"]
+    assert 0.002 < thickness_m < 0.015
