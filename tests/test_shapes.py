@@ -113,6 +113,24 @@ def test_tube_recovers_a_banana():
     assert extents_px(mesh)[2] == pytest.approx(19, rel=0.15)  # round: depth = width
 
 
+def metric_rectangle(shape, origin, s, lo_m, hi_m) -> np.ndarray:
+    """(H, W) bool filled rectangle from ``lo_m`` to ``hi_m`` (metres, weak perspective at ``s``
+    px/m about the pixel ``origin``)."""
+    m = np.zeros(shape, np.uint8)
+    p0 = np.round(np.array(lo_m) * s + origin).astype(int)
+    p1 = np.round(np.array(hi_m) * s + origin).astype(int) - 1
+    cv2.rectangle(m, tuple(int(x) for x in p0), tuple(int(x) for x in p1), 1, -1)
+    return m.astype(bool)
+
+
+def keypoint_disks(shape, points, radius: int) -> np.ndarray:
+    """(H, W) bool union of disks of ``radius`` px around (N, 2) pixel ``points``."""
+    m = np.zeros(shape, np.uint8)
+    for p in points:
+        cv2.circle(m, tuple(int(x) for x in p), radius, 1, -1)
+    return m.astype(bool)
+
+
 def phone_with_hand(thickness_m=0.01, s=1000.0):
     """A 20 x 10 cm phone face-on at ``s`` px/m, pinched by 3 keypoints in front and 3 behind.
 
@@ -131,19 +149,12 @@ def phone_with_hand(thickness_m=0.01, s=1000.0):
     k3[front, 2] = -thickness_m / 2 - PAD_M
     k3[behind, 2] = thickness_m / 2 + PAD_M
     k2 = k3[:, :2] * s + origin
-    m = np.zeros((H, W), np.uint8)
-    p0 = np.round(np.array([-0.09, -0.05]) * s + origin).astype(int)
-    p1 = np.round(np.array([0.11, 0.05]) * s + origin).astype(int) - 1
-    cv2.rectangle(m, tuple(int(x) for x in p0), tuple(int(x) for x in p1), 1, -1)
-    hand = np.zeros((H, W), np.uint8)
-    for i in range(21):
-        if i not in behind:
-            cv2.circle(hand, tuple(int(x) for x in k2[i]), 7, 1, -1)
-    hand = hand.astype(bool)
+    m = metric_rectangle((H, W), origin, s, (-0.09, -0.05), (0.11, 0.05))
+    hand = keypoint_disks((H, W), k2[[i for i in range(21) if i not in behind]], 7)
     for i in behind:  # the phone hides the fingers behind it
         r, c = int(k2[i, 1]), int(k2[i, 0])
         hand[r - 8 : r + 9, c - 8 : c + 9] = False
-    return m.astype(bool), hand, k2, k3 - k3.mean(0)
+    return m, hand, k2, k3 - k3.mean(0)
 
 
 def test_hand_cues_scale_and_thickness():
@@ -190,14 +201,8 @@ def pinched_card(thickness_m=0.004, s=1000.0, offset_m=(0.0, 0.0), view=True):
         k3[8] = [-0.02, 0.0, -half]
     k3[12] = [-0.09, 0.03, 0.0]
     k2 = k3[:, :2] * s + origin
-    m = np.zeros((H, W), np.uint8)
-    p0 = np.round(np.array([-0.06, -0.04]) * s + origin).astype(int)
-    p1 = np.round(np.array([0.06, 0.04]) * s + origin).astype(int) - 1
-    cv2.rectangle(m, tuple(int(x) for x in p0), tuple(int(x) for x in p1), 1, -1)
-    hand = np.zeros((H, W), np.uint8)
-    for i in range(21):
-        cv2.circle(hand, tuple(int(x) for x in k2[i]), 6, 1, -1)
-    return m.astype(bool), hand.astype(bool), k2, k3 - k3.mean(0)
+    m = metric_rectangle((H, W), origin, s, (-0.06, -0.04), (0.06, 0.04))
+    return m, keypoint_disks((H, W), k2, 6), k2, k3 - k3.mean(0)
 
 
 def test_pinch_aperture_gives_the_thickness_along_the_view():

@@ -61,13 +61,13 @@ import numpy as np
 INTERIOR_FRACTION = 0.3
 #: Soft tissue between a keypoint (joint centre) and the surface the finger presses, metres.
 PAD_M = 0.009
-#: Tilt cue (module docs): keypoints inside the outline, their spread along the axis (metres),
-#: the outline's aspect ratio, and the largest tilt out of the image (degrees).
 #: Pinch aperture (module docs): a fingertip keypoint's distance to the pad surface it presses
 #: with (metres), the least share of the aperture along the view, and the cue's confidence.
 TIP_PAD_M = 0.005
 PINCH_MIN_VIEW = 0.6
 PINCH_CONFIDENCE = 0.6
+#: Tilt cue (module docs): keypoints inside the outline, their spread along the axis (metres),
+#: the outline's aspect ratio, and the largest tilt out of the image (degrees).
 TILT_MIN_KEYPOINTS = 3
 TILT_MIN_SPREAD_M = 0.02
 TILT_MIN_ASPECT = 2.0
