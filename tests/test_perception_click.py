@@ -1,6 +1,7 @@
 """One-click object segmentation (``perception.click``) on drawn scenes with a known answer:
 a skin-coloured hand drawn from fixed keypoints and an object next to it that the region
-proposals do not give whole (textured, two-coloured, leaving the picture)."""
+proposals do not give whole (textured, two-coloured, leaving the picture); further clicks that
+add a part."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import numpy as np
 from easyhoi.perception.masks import ClassicalHOISegmenter
 from easyhoi.perception.prompts import Prompts
 from tests.test_perception_held_object import S, canvas, det, finish
-from tests.test_perception_masks import iou
+from tests.test_perception_masks import KP, iou
 
 YY, XX = np.mgrid[0:S, 0:S]
 
@@ -230,3 +231,53 @@ def test_settle_moves_a_loose_outline_onto_the_objects_edge():
     out = settle(img, loose, scene, np.array([200.0, 60.0]), 5, 0)
     assert iou(out, obj) > 0.95
     assert not (out & hand).any()
+
+
+def two_clicks(img: np.ndarray, first, second) -> tuple[np.ndarray, np.ndarray]:
+    seg = ClassicalHOISegmenter(seed=0)
+    one = seg.segment(img, det(), prompts=Prompts(object_points=(first,))).object_mask
+    two = seg.segment(img, det(), prompts=Prompts(object_points=(first, second))).object_mask
+    return one, two
+
+
+def test_a_second_click_adds_the_part_it_marks_not_the_background_around_it():
+    # a pale object on a dark panel, a dark button cut into its left edge (the panel's colour):
+    # grown alone, the button's best region is the panel; the second click must add the button
+    obj = (np.abs(XX - 195) < 32) & (np.abs(YY - 60) < 40)
+    button = (XX - 166) ** 2 + (YY - 60) ** 2 < 9**2
+    panel = (np.abs(XX - 185) < 52) & (np.abs(YY - 62) < 55)
+    img = canvas()
+    img[panel] = (35, 35, 40)
+    img[obj] = (225, 225, 220)
+    img[button] = (35, 35, 40)
+    img, hand = finish(img)
+    whole = obj | button
+    assert not (whole & hand).any()
+    one, two = two_clicks(img, (200.0, 60.0), (166.0, 60.0))
+    assert iou(one, whole) > 0.85
+    assert two[60, 166]  # the marked part is in
+    assert iou(two, whole) > 0.9
+    assert (two & panel & ~whole).sum() < 0.05 * whole.sum()  # the panel stays out
+
+
+def test_a_second_click_inside_the_object_changes_nothing():
+    obj = (np.abs(XX - 195) < 30) & (np.abs(YY - 60) < 35)
+    img = canvas()
+    img[obj] = (200, 40, 40)
+    img, _ = finish(img)
+    one, two = two_clicks(img, (195.0, 60.0), (210.0, 70.0))
+    assert np.array_equal(one, two)
+
+
+def test_the_first_object_point_picks_the_hand():
+    from easyhoi.perception.chain import prompted_hand_order
+
+    left = det(KP - [300.0, 0.0])
+    right = det()
+    far = (-200.0, 150.0)  # inside the left hand's keypoints' extent
+    first_near_right = Prompts(object_points=((195.0, 60.0), far, far, far))
+    # the mean of the points lies nearer the left hand; the first point decides
+    mean = np.mean(first_near_right.object_points, axis=0)
+    assert np.abs(KP - [300.0, 0.0] - mean).sum(1).min() < np.abs(KP - mean).sum(1).min()
+    assert prompted_hand_order([left, right], first_near_right) == ([1], "object prompt")
+    assert prompted_hand_order([left, right], Prompts(object_points=(far,)))[0] == [0]

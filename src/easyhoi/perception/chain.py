@@ -274,14 +274,17 @@ def prompted_hand_order(
     """The hands to segment, in order, and why: (indices, "hand point" / "object prompt" / None).
 
     A hand point picks the hand nearest to it; object prompts alone pick the hand nearest to
-    the object (the mean of its points, else the box centre): a held object lies at the hand
-    that holds it. Without prompts every hand is tried in detection order (reason None).
+    the object (its first point, else the box centre): a held object lies at the hand that
+    holds it. The first point, not the mean of all: further points mark parts the object
+    lacks, and a point on a far part of an object that two hands hold must not hand the
+    object to the other hand. Without prompts every hand is tried in detection order (reason
+    None).
     """
     if prompts is not None and prompts.hand_point is not None:
         return [nearest_hand(hands, prompts.hand_point)], "hand point"
     if prompts is not None and prompts.has_object_prompt:
         if prompts.object_points:
-            centre = np.mean(np.asarray(prompts.object_points, float), axis=0)
+            centre = np.asarray(prompts.object_points[0], float)
         else:
             x0, y0, x1, y1 = prompts.object_box
             centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])

@@ -48,6 +48,9 @@ FINE_SCALE = 75.0
 #: Width of the hand's rim left out of the click proposals, in palm lengths: about a finger
 #: and a half (a finger is about 0.2 L wide).
 RIM = 0.3
+#: Working windows of a further click (half-sides in palm lengths): the part it marks lies
+#: within a hand or so of it.
+ADD_WINDOWS = WINDOWS[:2]
 #: Smallest piece joined across the hand, as a share of the clicked piece.
 JOIN_MIN = 0.05
 #: Width of the probable-background band of :func:`settle`, in palm lengths.
@@ -150,7 +153,8 @@ def candidate_cues(
 
     Args:
         m (np.ndarray): (h, w) bool candidate mask.
-        p (np.ndarray): (2,) click (u, v) in crop pixels.
+        p (np.ndarray): (2,) click (u, v) in crop pixels, or (N, 2) clicks (``depth`` is then
+            their mean).
         window (np.ndarray | None): (h, w) bool GrabCut window (None for a proposal).
         scene (ho.Scene): The hand, its keypoints and colour model in the crop.
         exclude (np.ndarray): (h, w) bool pixels left out of the outline cues (the hands).
@@ -166,25 +170,31 @@ def candidate_cues(
     L = scene.palm
     h, w = m.shape
     dt = cv2.distanceTransform(np.pad(m, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
-    u, v = int(round(p[0])), int(round(p[1]))
-    depth = float(dt[v, u]) / max(1.0, float(dt.max()))
-    win = 0.0
-    if window is not None:  # share of the window's inner outline the mask runs into
-        ring = window & ~cv2.erode(window.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-        frame = np.zeros((h, w), bool)
-        frame[[0, -1], :], frame[:, [0, -1]] = True, True
-        ring &= ~frame  # the photo's edge is not the window's: the object may leave the photo
-        win = float((ring & m).sum()) / max(1.0, float(ring.sum()))
+    pts = np.rint(np.asarray(p, np.float64).reshape(-1, 2)).astype(int)
+    pts = np.clip(pts, 0, [w - 1, h - 1])
+    depth = float(dt[pts[:, 1], pts[:, 0]].mean()) / max(1.0, float(dt.max()))
     return {
         "contrast": ho.outline_contrast(m, exclude, codes, max(3, int(0.2 * L))),
         "edge": edge_strength(m, grad, exclude),
         "solidity": ho.solidity(m),
         "depth": depth,
-        "window": win,
+        "window": window_share(m, window),
         "skin": float((scene.skin_d2[m] < SKIN_D2).mean()),
         "area": float(m.sum()) / scene.hand_area,
         "frame": 0.0 if inner is None else float((m & inner).sum()) / L,
     }
+
+
+def window_share(m: np.ndarray, window: np.ndarray | None) -> float:
+    """Share of the GrabCut window's inner outline that the mask runs into (0 without a
+    window). The crop's own edge does not count: the object may leave the photo."""
+    if window is None:
+        return 0.0
+    ring = window & ~cv2.erode(window.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    frame = np.zeros(m.shape, bool)
+    frame[[0, -1], :], frame[:, [0, -1]] = True, True
+    ring &= ~frame
+    return float((ring & m).sum()) / max(1.0, float(ring.sum()))
 
 
 def click_candidates(
@@ -194,6 +204,7 @@ def click_candidates(
     forbidden: np.ndarray,
     iterations: int,
     seed: int,
+    windows: tuple[float, ...] = WINDOWS,
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """GrabCut candidates grown from one click, one per window and start.
 
@@ -204,6 +215,7 @@ def click_candidates(
         forbidden (np.ndarray): (h, w) bool hand and other-hand pixels.
         iterations (int): GrabCut iterations (at most :data:`CLICK_ITERATIONS`).
         seed (int): Seed of OpenCV's RNG.
+        windows (tuple[float, ...]): Window half-sides in palm lengths.
 
     Returns:
         list[tuple[np.ndarray, np.ndarray]]: (mask, window) pairs of (h, w) bool arrays.
@@ -224,7 +236,7 @@ def click_candidates(
     core &= ~sure
     n_iter = min(iterations, CLICK_ITERATIONS)
     out = []
-    for k, share in [(k, sh) for k in WINDOWS for sh in SEED_SHARES]:
+    for k, share in [(k, sh) for k in windows for sh in SEED_SHARES]:
         R = k * L
         u0, v0 = int(max(0, p[0] - R)), int(max(0, p[1] - R))
         u1, v1 = int(min(w, p[0] + R + 1)), int(min(h, p[1] + R + 1))
@@ -445,10 +457,48 @@ def click_object(
         return _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden, []
     best = max(range(len(scored)), key=lambda i: scored[i][0])
     obj = settle(img, take_back_from_hand(scored[best][2], scene), scene, p, iterations, seed)
-    for q in pts[1:]:  # further clicks: their own best candidate joins the object
-        extra = click_object(img, scene, q[None], [], iterations, seed, inside)[0]
-        obj = obj | extra
+    for k in range(1, len(pts)):  # further clicks: the object grown to take each in
+        obj = add_click(img, scene, obj, pts[: k + 1], iterations, seed, inside)
     return obj, [(s, c) for s, c, _ in scored]
+
+
+def add_click(
+    img: np.ndarray,
+    scene: ho.Scene,
+    obj: np.ndarray,
+    pts: np.ndarray,
+    iterations: int,
+    seed: int,
+    inside: tuple[bool, bool, bool, bool] | None = None,
+) -> np.ndarray:
+    """``obj`` joined with the candidate grown from the last of ``pts`` whose union with it
+    scores best as one object (:func:`click_score`, ``depth`` averaged over all ``pts``).
+
+    A further click marks a part the object lacks. Judged alone, the best region grown from it
+    can be the background around a small part (a dark button on a pale object leaks into a dark
+    background); judged as part of the whole, the union that still looks like one object wins.
+    """
+    q = pts[-1]
+    if obj[int(round(q[1])), int(round(q[0]))]:
+        return obj
+    forbidden = scene.hand | scene.other_hands
+    exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    codes = ho.colour_codes(scene.lab)
+    gray = cv2.GaussianBlur(scene.lab[..., 0].astype(np.float32), (3, 3), 0)
+    grad = np.hypot(cv2.Sobel(gray, cv2.CV_32F, 1, 0), cv2.Sobel(gray, cv2.CV_32F, 0, 1))
+    inner = inner_edges(img.shape[:2], inside)
+    best, best_score = None, -np.inf
+    for m, window in click_candidates(img, scene, q, forbidden, iterations, seed, ADD_WINDOWS):
+        u = fill_holes(obj | take_back_from_hand(m, scene))
+        c = candidate_cues(u, pts, None, scene, exclude, codes, grad, inner)
+        # a grown part that runs into its window leaks (the object around it is not)
+        c["window"] = window_share(m, window)
+        sc = click_score(c)
+        if sc > best_score:
+            best, best_score = u, sc
+    if best is None:
+        return obj | (_disk(obj.shape, q, max(1.5, SURE * scene.palm)) & ~forbidden)
+    return best
 
 
 def scored_candidates(

@@ -179,16 +179,22 @@ class ClassicalHOISegmenter:
         side = self.crop_factor * max(float((hi - lo).max()), 2.0 * palm_length(kp))
         x0, y0, x1, y1 = c[0] - side / 2, c[1] - side / 2, c[0] + side / 2, c[1] + side / 2
         if prompts is not None:
-            pts = [*prompts.object_points]
+            pts = [*prompts.object_points[:1]]
             if prompts.object_box is not None:
                 bx0, by0, bx1, by1 = prompts.object_box
                 pts += [(bx0, by0), (bx1, by1)]
+            L = palm_length(kp)
             if pts:  # the prompted object and a margin around it: a clicked object may reach
                 # a few palm lengths from the click
                 p = np.asarray(pts, dtype=np.float64)
-                m = max(0.25 * side, 3.0 * palm_length(kp))
+                m = max(0.25 * side, 3.0 * L)
                 x0, y0 = min(x0, p[:, 0].min() - m), min(y0, p[:, 1].min() - m)
                 x1, y1 = max(x1, p[:, 0].max() + m), max(y1, p[:, 1].max() + m)
+            if len(prompts.object_points) > 1:  # further points: inside, with a palm length
+                # around them; they add parts to the first point's object without re-framing it
+                p = np.asarray(prompts.object_points[1:], dtype=np.float64)
+                x0, y0 = min(x0, p[:, 0].min() - L), min(y0, p[:, 1].min() - L)
+                x1, y1 = max(x1, p[:, 0].max() + L), max(y1, p[:, 1].max() + L)
         x0, y0 = int(max(0, x0)), int(max(0, y0))
         x1, y1 = int(min(w, np.ceil(x1))), int(min(h, np.ceil(y1)))
         if x1 - x0 < 8 or y1 - y0 < 8:
