@@ -55,6 +55,9 @@ def test_clicks_on_the_thumbnail_become_photo_pixels(tmp_path):
         many = ap.add_click(many, "object point", (i, i), (512, 410))
     assert len(many["object_points"]) == ap.MAX_OBJECT_POINTS
     assert many["object_points"][-1][0] == round((ap.MAX_OBJECT_POINTS + 2.5) * 1000 / 512, 1)
+    first = many["object_points"][0][0]  # the first point stays: it frames the object
+    assert first == round(0.5 * 1000 / 512, 1)
+    assert many["object_points"][1][0] == round(4.5 * 1000 / 512, 1)
 
 
 def test_points_and_masks_are_drawn_where_they_are(tmp_path):

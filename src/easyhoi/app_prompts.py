@@ -71,7 +71,8 @@ def load_preview(path, max_upload_mb: float) -> tuple[np.ndarray | None, str, di
 def add_click(state: dict | None, mode: str, xy, shown_size: tuple[int, int]) -> dict:
     """The state after a click at ``xy`` (pixels of the shown image of ``shown_size`` (w, h)).
 
-    ``mode`` is one of :data:`MODES`: an object point is appended, the hand point replaced.
+    ``mode`` is one of :data:`MODES`: an object point is appended (beyond
+    :data:`MAX_OBJECT_POINTS`, the oldest but the first is dropped), the hand point replaced.
     A click outside the image (or before a photo is loaded) leaves the state as it is.
     """
     state = dict(state or new_state())
@@ -89,8 +90,10 @@ def add_click(state: dict | None, mode: str, xy, shown_size: tuple[int, int]) ->
     if mode == MODES[1]:
         state["hand_point"] = [px, py]
     elif mode == MODES[0]:
-        pts = list(state.get("object_points") or [])
-        state["object_points"] = (pts + [[px, py]])[-MAX_OBJECT_POINTS:]
+        pts = list(state.get("object_points") or []) + [[px, py]]
+        # the first point frames the object and picks the hand: past the cap, the oldest of
+        # the further points goes
+        state["object_points"] = pts[:1] + pts[1:][-(MAX_OBJECT_POINTS - 1) :]
     else:
         raise InvalidInputError(f"unknown click mode {mode!r}; one of {', '.join(MODES)}")
     return state
