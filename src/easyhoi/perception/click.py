@@ -481,12 +481,7 @@ def add_click(
     q = pts[-1]
     if obj[int(round(q[1])), int(round(q[0]))]:
         return obj
-    forbidden = scene.hand | scene.other_hands
-    exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    codes = ho.colour_codes(scene.lab)
-    gray = cv2.GaussianBlur(scene.lab[..., 0].astype(np.float32), (3, 3), 0)
-    grad = np.hypot(cv2.Sobel(gray, cv2.CV_32F, 1, 0), cv2.Sobel(gray, cv2.CV_32F, 0, 1))
-    inner = inner_edges(img.shape[:2], inside)
+    forbidden, exclude, codes, grad, inner = _cue_inputs(img, scene, inside)
     best, best_score = None, -np.inf
     for m, window in click_candidates(img, scene, q, forbidden, iterations, seed, ADD_WINDOWS):
         u = fill_holes(obj | take_back_from_hand(m, scene))
@@ -501,6 +496,18 @@ def add_click(
     return best
 
 
+def _cue_inputs(img: np.ndarray, scene: ho.Scene, inside) -> tuple:
+    """What :func:`candidate_cues` needs besides the mask, computed once per click: the hands
+    (forbidden), the pixels left out of the outline cues, the colour bins, the lightness
+    gradient and the crop's inner edges."""
+    forbidden = scene.hand | scene.other_hands
+    exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    codes = ho.colour_codes(scene.lab)
+    gray = cv2.GaussianBlur(scene.lab[..., 0].astype(np.float32), (3, 3), 0)
+    grad = np.hypot(cv2.Sobel(gray, cv2.CV_32F, 1, 0), cv2.Sobel(gray, cv2.CV_32F, 0, 1))
+    return forbidden, exclude, codes, grad, inner_edges(img.shape[:2], inside)
+
+
 def scored_candidates(
     img: np.ndarray,
     scene: ho.Scene,
@@ -512,12 +519,7 @@ def scored_candidates(
 ) -> list[tuple[float, dict[str, float], np.ndarray]]:
     """(score, cues, mask) of every candidate for the click ``p``: the GrabCut candidates
     grown from it and the (non-empty) ``regions`` containing it."""
-    forbidden = scene.hand | scene.other_hands
-    exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    codes = ho.colour_codes(scene.lab)
-    gray = cv2.GaussianBlur(scene.lab[..., 0].astype(np.float32), (3, 3), 0)
-    grad = np.hypot(cv2.Sobel(gray, cv2.CV_32F, 1, 0), cv2.Sobel(gray, cv2.CV_32F, 0, 1))
-    inner = inner_edges(img.shape[:2], inside)
+    forbidden, exclude, codes, grad, inner = _cue_inputs(img, scene, inside)
     cands = click_candidates(img, scene, p, forbidden, iterations, seed)
     cands += [(m, None) for m in regions if m.any()]
     scored = []
