@@ -435,8 +435,8 @@ def click_object(
     Args:
         img (np.ndarray): (h, w, 3) uint8 RGB working crop.
         scene (ho.Scene): The hand, its keypoints and colour model in the crop.
-        points (np.ndarray): (N, 2) clicks (u, v) in crop pixels; the first one is grown, each
-            further one adds its own best region.
+        points (np.ndarray): (N, 2) clicks (u, v) in crop pixels; the first one is grown, the
+            object then grown to take in each further one (:func:`add_click`).
         regions (list[np.ndarray]): (h, w) bool region masks containing the first click
             (:func:`click_proposals`), scored with the GrabCut candidates.
         iterations (int): GrabCut iterations.
