@@ -5,7 +5,8 @@ outline (``tests/data/perception_refs``).
 The photos are ones where only the region proposals containing the click give the whole object
 (a board game with a printed picture, a cutting board, a two-coloured pack) or where GrabCut
 alone does (a bottle, a lollipop); IoU >= 0.5 is asserted, and that the object and hand masks
-do not overlap.
+do not overlap. A second point where a user adds one completes objects the hand splits and
+keeps what the first point found.
 """
 
 from __future__ import annotations
@@ -54,3 +55,49 @@ def test_one_click_finds_the_held_object(shared_data, detector, key):
     assert seg is not None and seg.has_object
     assert pr.mask_iou(seg.object_mask, pr.held_object_mask(ref)) >= 0.5, key
     assert not (seg.object_mask & seg.hand_mask).any()
+
+
+#: (photo, one-point IoU below, two-point IoU at least): objects the hand splits in two (a
+#: microphone's head and handle, a game board's halves) and a pale controller with a dark d-pad
+TWO_POINTS = (
+    ("photos-dev__mow-boardgame_v_cx0_G7zCYSc_frame000292", 0.5, 0.6),
+    ("photos-dev__ihoi-demo_03", 0.5, 0.5),
+    ("images__easyhoi-game-controller", 1.0, 0.85),
+)
+
+
+@pytest.mark.parametrize("key,one_below,two_min", TWO_POINTS)
+def test_a_second_point_adds_the_missing_part(shared_data, detector, key, one_below, two_min):
+    """The second point where a user adds one (``bench_perception.second_point``: the deepest
+    pixel of what the one-point mask misses): the object grows to take it in, and never loses
+    what the first point found."""
+    import sys
+    from pathlib import Path
+
+    from easyhoi.io.image import load_image
+    from easyhoi.perception.chain import segment_hands
+    from easyhoi.perception.masks import ClassicalHOISegmenter
+    from easyhoi.perception.prompts import Prompts
+    from tests import perception_refs as pr
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_perception import second_point
+
+    ref = pr.load_ref(key)
+    path = ref.image_path(shared_data)
+    if not path.is_file():
+        pytest.skip(f"{path} not found")
+    rgb = load_image(path).rgb
+    if rgb.shape[:2] != (ref.height, ref.width):
+        pytest.skip("photo resampled by the loader")
+    hands = detector.detect(rgb)
+    target = pr.held_object_mask(ref)
+    first = pr.object_point(ref)
+    seg = ClassicalHOISegmenter()
+    _, one, _, _ = segment_hands(rgb, hands, seg, Prompts(object_points=(first,)))
+    second = second_point(one.object_mask, target)
+    assert second is not None, key  # the one-point mask misses more than it leaks
+    _, two, _, _ = segment_hands(rgb, hands, seg, Prompts(object_points=(first, second)))
+    i1, i2 = pr.mask_iou(one.object_mask, target), pr.mask_iou(two.object_mask, target)
+    assert i1 < one_below and i2 >= two_min, (key, i1, i2)
+    assert (two.object_mask & one.object_mask).sum() >= 0.95 * one.object_mask.sum()
