@@ -58,7 +58,7 @@ def test_one_click_finds_the_held_object(shared_data, detector, key):
 
 
 #: (photo, one-point IoU below, two-point IoU at least): objects the hand splits in two (a
-#: microphone's head and handle, a game board's halves) and a pale controller with a dark d-pad
+#: microphone's head and handle, a book's two sides) and a pale controller with a dark d-pad
 TWO_POINTS = (
     ("photos-dev__mow-boardgame_v_cx0_G7zCYSc_frame000292", 0.5, 0.6),
     ("photos-dev__ihoi-demo_03", 0.5, 0.5),
