@@ -185,6 +185,9 @@ def run_click(rgb, ref, detector, segmenter) -> dict:
         row["cpu_seconds_point"] = time.process_time() - c0
         m1 = sp.object_mask if sp is not None else None
         row["iou_point"] = iou(m1, ref["object"])
+        sys.path.insert(0, str(ROOT))
+        from tests.perception_refs import second_point
+
         second = second_point(m1, ref["object"])
         row["iou_point2"] = row["iou_point"]
         if second is not None:
@@ -192,21 +195,6 @@ def run_click(rgb, ref, detector, segmenter) -> dict:
             _, s2, _, _ = segment_hands(rgb, hands, segmenter, prompts=p2)
             row["iou_point2"] = iou(s2.object_mask if s2 is not None else None, ref["object"])
     return row
-
-
-def second_point(mask: np.ndarray | None, ref: np.ndarray) -> tuple[float, float] | None:
-    """Where a user adds a second object point: the deepest pixel of the part of the reference
-    object that the one-point mask misses, when it misses more than it takes in beyond the
-    object (else None: a further object point cannot take away a leak)."""
-    from scipy import ndimage
-
-    miss = ref & ~mask if mask is not None else ref
-    extra = (mask & ~ref).sum() if mask is not None else 0
-    if miss.sum() <= extra or not miss.any():
-        return None
-    dist = ndimage.distance_transform_edt(miss)
-    r, c = np.unravel_index(int(np.argmax(dist)), dist.shape)
-    return float(c) + 0.5, float(r) + 0.5
 
 
 def click_summary(rows: list[dict]) -> dict:

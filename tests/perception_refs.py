@@ -183,6 +183,21 @@ def object_point(ref: PerceptionRef) -> tuple[int, int] | None:
     return int(xs[k]), int(ys[k])
 
 
+def second_point(mask: np.ndarray | None, ref: np.ndarray) -> tuple[float, float] | None:
+    """Where a user adds a second object point: the deepest pixel of the part of the reference
+    object ``ref`` that the one-point ``mask`` misses, when it misses more than it takes in
+    beyond the object (else None: a further object point cannot take away a leak)."""
+    from scipy import ndimage
+
+    miss = ref & ~mask if mask is not None else ref
+    extra = (mask & ~ref).sum() if mask is not None else 0
+    if miss.sum() <= extra or not miss.any():
+        return None
+    dist = ndimage.distance_transform_edt(miss)
+    r, c = np.unravel_index(int(np.argmax(dist)), dist.shape)
+    return float(c) + 0.5, float(r) + 0.5
+
+
 def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
     """Intersection over union of two bool masks (1.0 when both are empty)."""
     union = np.logical_or(a, b).sum()

@@ -31,12 +31,9 @@ def detector():
     return MediaPipeHands()
 
 
-@pytest.mark.parametrize("key", PHOTOS)
-def test_one_click_finds_the_held_object(shared_data, detector, key):
+def photo(shared_data, key: str):
+    """(reference, RGB photo) of ``key``; skips when the photo is missing or resampled."""
     from easyhoi.io.image import load_image
-    from easyhoi.perception.chain import segment_hands
-    from easyhoi.perception.masks import ClassicalHOISegmenter
-    from easyhoi.perception.prompts import Prompts
     from tests import perception_refs as pr
 
     ref = pr.load_ref(key)
@@ -46,6 +43,17 @@ def test_one_click_finds_the_held_object(shared_data, detector, key):
     rgb = load_image(path).rgb
     if rgb.shape[:2] != (ref.height, ref.width):
         pytest.skip("photo resampled by the loader")
+    return ref, rgb
+
+
+@pytest.mark.parametrize("key", PHOTOS)
+def test_one_click_finds_the_held_object(shared_data, detector, key):
+    from easyhoi.perception.chain import segment_hands
+    from easyhoi.perception.masks import ClassicalHOISegmenter
+    from easyhoi.perception.prompts import Prompts
+    from tests import perception_refs as pr
+
+    ref, rgb = photo(shared_data, key)
     hands = detector.detect(rgb)
     assert hands, key
     point = pr.object_point(ref)
@@ -68,34 +76,21 @@ TWO_POINTS = (
 
 @pytest.mark.parametrize("key,one_below,two_min", TWO_POINTS)
 def test_a_second_point_adds_the_missing_part(shared_data, detector, key, one_below, two_min):
-    """The second point where a user adds one (``bench_perception.second_point``: the deepest
+    """The second point where a user adds one (``perception_refs.second_point``: the deepest
     pixel of what the one-point mask misses): the object grows to take it in, and never loses
     what the first point found."""
-    import sys
-    from pathlib import Path
-
-    from easyhoi.io.image import load_image
     from easyhoi.perception.chain import segment_hands
     from easyhoi.perception.masks import ClassicalHOISegmenter
     from easyhoi.perception.prompts import Prompts
     from tests import perception_refs as pr
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    from bench_perception import second_point
-
-    ref = pr.load_ref(key)
-    path = ref.image_path(shared_data)
-    if not path.is_file():
-        pytest.skip(f"{path} not found")
-    rgb = load_image(path).rgb
-    if rgb.shape[:2] != (ref.height, ref.width):
-        pytest.skip("photo resampled by the loader")
+    ref, rgb = photo(shared_data, key)
     hands = detector.detect(rgb)
     target = pr.held_object_mask(ref)
     first = pr.object_point(ref)
     seg = ClassicalHOISegmenter()
     _, one, _, _ = segment_hands(rgb, hands, seg, Prompts(object_points=(first,)))
-    second = second_point(one.object_mask, target)
+    second = pr.second_point(one.object_mask, target)
     assert second is not None, key  # the one-point mask misses more than it leaks
     _, two, _, _ = segment_hands(rgb, hands, seg, Prompts(object_points=(first, second)))
     i1, i2 = pr.mask_iou(one.object_mask, target), pr.mask_iou(two.object_mask, target)
