@@ -21,7 +21,10 @@ With ``--click-only`` each photo also gets a second object point where a user wo
 (``point2``): the deepest pixel of the part of the reference object the one-point mask misses,
 when the mask misses more than it takes in beyond the object (a further object point cannot
 take a leak away; then the one-point IoU is kept). ``point2_worse_by_0.05`` counts the photos
-whose mask the second point makes worse.
+whose mask the second point makes worse. ``fix`` is the second gesture of either kind: a
+background point (``--background-point``) at the deepest pixel of what the one-point mask takes
+in beyond the object, when that is a region one sees (``tests/perception_refs.background_point``),
+else the second object point above.
 
 The reference object is every object a hand holds (``held_by``), visibly or not.
 
@@ -186,7 +189,7 @@ def run_click(rgb, ref, detector, segmenter) -> dict:
         m1 = sp.object_mask if sp is not None else None
         row["iou_point"] = iou(m1, ref["object"])
         sys.path.insert(0, str(ROOT))
-        from tests.perception_refs import second_point
+        from tests.perception_refs import background_point, second_point
 
         second = second_point(m1, ref["object"])
         row["iou_point2"] = row["iou_point"]
@@ -194,6 +197,13 @@ def run_click(rgb, ref, detector, segmenter) -> dict:
             p2 = Prompts(object_points=(p.object_points[0], second))
             _, s2, _, _ = segment_hands(rgb, hands, segmenter, prompts=p2)
             row["iou_point2"] = iou(s2.object_mask if s2 is not None else None, ref["object"])
+        row["iou_fix"], row["fix"] = row["iou_point2"], "object" if second is not None else ""
+        bg = background_point(m1, ref["object"])
+        if bg is not None:
+            pb = Prompts(object_points=p.object_points, background_points=(bg,))
+            _, sb, _, _ = segment_hands(rgb, hands, segmenter, prompts=pb)
+            row["iou_fix"] = iou(sb.object_mask if sb is not None else None, ref["object"])
+            row["fix"] = "background"
     return row
 
 
@@ -212,6 +222,14 @@ def click_summary(rows: list[dict]) -> dict:
         else 0.0,
         "point2_worse_by_0.05": sum(
             r.get("iou_point2", 0.0) < r.get("iou_point", 0.0) - 0.05 for r in pts
+        ),
+        "fix_iou_ge_0.5": float(np.mean([r.get("iou_fix", 0.0) >= 0.5 for r in pts]))
+        if pts
+        else 0.0,
+        "background_fixes": sum(r.get("fix") == "background" for r in pts),
+        "background_fix_worse_by_0.05": sum(
+            r.get("fix") == "background" and r.get("iou_fix", 0.0) < r.get("iou_point", 0.0) - 0.05
+            for r in pts
         ),
         "median_seconds_point": float(np.median(secs)) if secs else 0.0,
         # CPU time of the one process: wall time on a machine shared with other work
@@ -319,6 +337,7 @@ def main(argv=None) -> int:
             print(
                 f"{name[:44]:44s} {half:5s} pt={row.get('iou_point', float('nan')):.2f} "
                 f"pt2={row.get('iou_point2', float('nan')):.2f} "
+                f"fix={row.get('iou_fix', float('nan')):.2f}{row.get('fix', '')[:2]} "
                 f"{row.get('seconds_point', 0.0):.2f}s "
                 f"cpu {row.get('cpu_seconds_point', 0.0):.2f}s",
                 file=sys.stderr,

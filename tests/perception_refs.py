@@ -198,6 +198,25 @@ def second_point(mask: np.ndarray | None, ref: np.ndarray) -> tuple[float, float
     return float(c) + 0.5, float(r) + 0.5
 
 
+def background_point(mask: np.ndarray | None, ref: np.ndarray) -> tuple[float, float] | None:
+    """Where a user adds a background point: the deepest pixel of the part of ``mask`` that lies
+    beyond the reference object ``ref``, when it takes in at least as much as it misses and is
+    a region one sees, not a rim along the outline (at its deepest at least a quarter as deep as
+    the object); else None (a further object point adds what the mask misses)."""
+    from scipy import ndimage
+
+    if mask is None:
+        return None
+    extra = mask & ~ref
+    if not extra.any() or extra.sum() < (ref & ~mask).sum():
+        return None
+    dist = ndimage.distance_transform_edt(extra)
+    if dist.max() < max(3.0, 0.25 * float(ndimage.distance_transform_edt(ref).max())):
+        return None
+    r, c = np.unravel_index(int(np.argmax(dist)), dist.shape)
+    return float(c) + 0.5, float(r) + 0.5
+
+
 def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
     """Intersection over union of two bool masks (1.0 when both are empty)."""
     union = np.logical_or(a, b).sum()

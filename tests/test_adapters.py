@@ -334,6 +334,23 @@ def test_grounded_sam_segments_hand_and_object(owl_dir, sam_dir):
     pointed = seg.segment(img, hand, prompts=Prompts(object_points=((60.0, 30.0),)))
     assert seg.last_detections is None and pointed.meta["object_box"] is None
     assert pointed.object_mask.shape == (60, 80)
+    # background points go to SAM as negative points (label 0), after the positive ones
+    calls, real = [], seg.sam.processor
+
+    class Spy:
+        def __call__(self, *a, **kw):
+            calls.append(kw)
+            return real(*a, **kw)
+
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+    seg.sam.processor = Spy()
+    negative = Prompts(object_points=((60.0, 30.0),), background_points=((10.0, 50.0),))
+    assert seg.segment(img, hand, prompts=negative).object_mask.shape == (60, 80)
+    assert calls[-1]["input_points"] == [[[[60.0, 30.0], [10.0, 50.0]]]]
+    assert calls[-1]["input_labels"] == [[[1, 0]]]
+    seg.sam.processor = real
     with pytest.raises(InvalidInputError, match="21 hand keypoints"):
         seg.segment(img, HandDetection(np.zeros((0, 2)), None, "right", 1.0))
 

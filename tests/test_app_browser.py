@@ -216,6 +216,13 @@ def test_click_on_the_photo_adds_a_point_previews_the_mask_and_runs_with_it(serv
     _click_on_image(driver, img, 0.8, 0.2)
     wait.until(lambda d: "hand point: (" in text("#prompt_text"))
     assert "object point: (" in text("#prompt_text")
+    # the background mode adds a point that is not the object
+    driver.find_element(
+        By.XPATH, "//*[@id='click_mode']//label[contains(., 'background point')]"
+    ).click()
+    img = driver.find_element(By.CSS_SELECTOR, "#preview img")
+    _click_on_image(driver, img, 0.1, 0.9)
+    wait.until(lambda d: "not the object: (" in text("#prompt_text"))
 
     # Run: the reconstruction gets the points; the pointed object is not a low-confidence one
     PROMPTS_SEEN.clear()
@@ -226,6 +233,8 @@ def test_click_on_the_photo_adds_a_point_previews_the_mask_and_runs_with_it(serv
     (prompts,) = PROMPTS_SEEN
     assert np.allclose(prompts.object_points, [(x, y)], atol=0.5)  # the text shows them rounded
     assert prompts.hand_point is not None and prompts.hand_point[0] > 400
+    ((bx, by),) = prompts.background_points
+    assert bx < 200 and by > 300
     assert not any(e.is_displayed() for e in driver.find_elements(By.CSS_SELECTOR, "#warnings"))
 
     # Clear points: back to none; a run without points warns about the object mask

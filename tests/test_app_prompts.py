@@ -29,7 +29,12 @@ def grey(path: Path, size=(1000, 800)) -> Path:
 def test_clicks_on_the_thumbnail_become_photo_pixels(tmp_path):
     rgb, err, state = ap.load_preview(grey(tmp_path / "p.png"), 20)
     assert err == "" and rgb.shape == (410, 512, 3)  # 1000x800 shown at 512 px
-    assert state == {"object_points": [], "hand_point": None, "photo_size": [1000, 800]}
+    assert state == {
+        "object_points": [],
+        "hand_point": None,
+        "background_points": [],
+        "photo_size": [1000, 800],
+    }
     assert ap.state_prompts(state) is None and "Click on the held object" in ap.prompt_text(state)
     s1 = ap.add_click(state, "object point", (255, 204), (512, 410))
     # pixel centre (255.5, 204.5) of the thumbnail times 1000/512 and 800/410
@@ -58,13 +63,29 @@ def test_clicks_on_the_thumbnail_become_photo_pixels(tmp_path):
     first = many["object_points"][0][0]  # the first point stays: it frames the object
     assert first == round(0.5 * 1000 / 512, 1)
     assert many["object_points"][1][0] == round(4.5 * 1000 / 512, 1)
+    # background points: appended, the oldest dropped past the cap
+    bg = ap.add_click(s2, "background point", (100, 50), (512, 410))
+    bg = ap.add_click(bg, "background point", (101, 51), (512, 410))
+    assert bg["background_points"] == [
+        [round(100.5 * 1000 / 512, 1), round(50.5 * 800 / 410, 1)],
+        [round(101.5 * 1000 / 512, 1), round(51.5 * 800 / 410, 1)],
+    ]
+    assert ap.state_prompts(bg).background_points == tuple(map(tuple, bg["background_points"]))
+    assert ap.prompt_text(bg).endswith("; not the object: (196, 98), (198, 100)")
+    for i in range(ap.MAX_OBJECT_POINTS + 3):
+        bg = ap.add_click(bg, "background point", (i, i), (512, 410))
+    assert len(bg["background_points"]) == ap.MAX_OBJECT_POINTS
+    assert bg["background_points"][0][0] == round(3.5 * 1000 / 512, 1)
 
 
 def test_points_and_masks_are_drawn_where_they_are(tmp_path):
     rgb, _, state = ap.load_preview(grey(tmp_path / "p.png"), 20)
     state = ap.add_click(state, "object point", (100, 100), (512, 410))
     state = ap.add_click(state, "hand point", (400, 300), (512, 410))
+    state = ap.add_click(state, "background point", (300, 50), (512, 410))
     drawn = ap.draw_prompts(rgb, state)
+    assert tuple(drawn[50, 300 + 5]) == (230, 40, 60)  # red disc beside the background point
+    assert tuple(drawn[50, 300]) == (255, 255, 255)  # with a white cross through it
     assert drawn.shape == rgb.shape and drawn.dtype == np.uint8
     assert tuple(drawn[100, 100]) == (40, 220, 90)  # green disc at the object point
     assert tuple(drawn[300, 400]) == (255, 140, 0)  # orange disc at the hand point
@@ -118,7 +139,8 @@ def test_mask_preview_states_the_masks_confidence(tmp_path):
     assert "; confidence hand 0.90, object 0.35." in text
     assert text.endswith(
         " Low confidence in the object mask (score 0.35; weak: faint outline): click on the parts "
-        "of the object the mask misses and run again."
+        "of the object the mask misses (or, as background points, on what it takes in beyond "
+        "the object) and run again."
     )  # the object was clicked on already: more clicks
 
 

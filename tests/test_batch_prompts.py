@@ -30,19 +30,24 @@ def _photo(path: Path, size=(64, 48)) -> Path:
 
 def test_json_and_csv_give_the_same_prompts():
     js = parse_prompts_json(json.dumps({
-        "a.jpg": {"object_points": [[10, 20], [12.5, 22]], "hand_point": [3, 4]},
+        "a.jpg": {"object_points": [[10, 20], [12.5, 22]], "hand_point": [3, 4],
+                  "background_points": [[7, 8], [9, 1]]},
         "sub/b.png": {"object_box": [1, 2, 30, 40]},
     }))  # fmt: skip
     cs = parse_prompts_csv(
         "photo,kind,x,y,x1,y1\n"
         "a.jpg,object_point,10,20,,\n"
         "\n"
+        "a.jpg,background_point,7,8\n"
         "sub/b.png, object_box ,1,2,30,40\n"
         "a.jpg,hand_point,3,4\n"
         "a.jpg,object_point,12.5,22,,\n"
+        "a.jpg,background_point,9,1\n"
     )
     assert js == cs
-    assert js["a.jpg"] == Prompts(((10.0, 20.0), (12.5, 22.0)), None, (3.0, 4.0))
+    assert js["a.jpg"] == Prompts(
+        ((10.0, 20.0), (12.5, 22.0)), None, (3.0, 4.0), ((7.0, 8.0), (9.0, 1.0))
+    )
     assert js["sub/b.png"] == Prompts((), (1.0, 2.0, 30.0, 40.0), None)
     assert parse_prompts_csv("photo,kind,x,y\nc.jpg,object_point,5,6\n") == {
         "c.jpg": Prompts(((5.0, 6.0),))

@@ -149,6 +149,7 @@ def fake_perception(scene_photo, monkeypatch):
         (["--object-box", "1,2,3"], "--object-box expects X0,Y0,X1,Y1"),
         (["--object-box", "30,2,10,40"], "must have x0 < x1 and y0 < y1"),
         (["--hand-point", "1,2,3"], "--hand-point expects X,Y"),
+        (["--background-point", "1;2"], "--background-point expects X,Y"),
     ],
 )
 def test_malformed_prompts_exit_2_before_any_work(tmp_path, capsys, monkeypatch, flags, message):
@@ -169,6 +170,7 @@ def test_malformed_prompts_exit_2_before_any_work(tmp_path, capsys, monkeypatch,
         (["--object-point", "5,5", "--object-point=-1,5"], "--object-point -1,5 lies outside"),
         (["--hand-point", "3,200"], "--hand-point 3,200 lies outside the 128x128 photo"),
         (["--object-box", "130,0,200,50"], "does not overlap the 128x128 photo"),
+        (["--background-point", "5,128"], "--background-point 5,128 lies outside the 128x128"),
     ],
 )
 def test_prompts_outside_the_photo_are_refused_before_perception(
@@ -202,7 +204,8 @@ def test_prompts_reach_perception_scaled_to_the_working_photo(fake_perception, t
     fake_perception["confidence"] = {"object": (0.1, ("outline has little contrast",))}
     rc = main(["reconstruct", str(big), "--out", str(tmp_path / "o"), "--strict",
                "--object-point", "1000,600", "--object-point", "3199,1999",
-               "--object-box", "800,400,2400,1600", "--hand-point", "200,1800"])  # fmt: skip
+               "--object-box", "800,400,2400,1600", "--hand-point", "200,1800",
+               "--background-point", "3000,100"])  # fmt: skip
     assert rc == LowConfidenceError.exit_code == 9
     (call,) = fake_perception["calls"]
     assert call["shape"] == (1000, 1600, 3)
@@ -211,6 +214,7 @@ def test_prompts_reach_perception_scaled_to_the_working_photo(fake_perception, t
     assert 1599 < got.object_points[1][0] < 1600 and 999 < got.object_points[1][1] < 1000
     assert got.object_box == (400.0, 200.0, 1200.0, 800.0)
     assert got.hand_point == (100.0, 900.0)
+    assert got.background_points == ((1500.0, 50.0),)
     got.check(1600, 1000)  # inside the working photo
 
 
@@ -268,7 +272,7 @@ def test_low_confidence_without_strict_writes_the_result_and_warns(
     assert "done in" in cap.out
     res = json.loads((tmp_path / "o" / "scene" / "result.json").read_text())
     assert res["meta"]["prompts"] == {"object_points": [[60.0, 70.0]], "object_box": None,
-                                      "hand_point": None}  # fmt: skip
+                                      "hand_point": None, "background_points": []}  # fmt: skip
     conf = res["meta"]["perception"]["confidence"]
     assert conf["hand"] == {"score": 0.2, "low": True, "reasons": ["few skin pixels"]}
     report = (tmp_path / "o" / "scene" / "report.html").read_text()

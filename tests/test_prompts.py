@@ -21,6 +21,8 @@ def test_check_inside_photo():
         Prompts(((10, 0),)).check(10, 5)
     with pytest.raises(InvalidInputError, match="--hand-point"):
         Prompts(hand_point=(1, 5)).check(10, 5)
+    with pytest.raises(InvalidInputError, match="--background-point -1,2 lies outside"):
+        Prompts(background_points=((1, 1), (-1, 2))).check(10, 5)
     with pytest.raises(InvalidInputError, match="x0 < x1"):
         Prompts(object_box=(5, 1, 5, 3)).check(10, 5)
     with pytest.raises(InvalidInputError, match="does not overlap"):
@@ -28,10 +30,15 @@ def test_check_inside_photo():
 
 
 def test_round_trip_and_flags():
-    p = Prompts(((1.0, 2.0),), (0.0, 0.0, 4.0, 4.0), (3.0, 3.0))
+    p = Prompts(((1.0, 2.0),), (0.0, 0.0, 4.0, 4.0), (3.0, 3.0), ((5.0, 1.0),))
     assert Prompts.from_dict(p.to_dict()) == p
     assert not p.empty and p.has_object_prompt
     assert Prompts().empty and not Prompts(hand_point=(1, 1)).has_object_prompt
+    # background points alone are a prompt, not an object prompt
+    bg = Prompts(background_points=((2.0, 2.0),))
+    assert not bg.empty and not bg.has_object_prompt
+    with pytest.raises(InvalidInputError, match="background_points must be a list"):
+        Prompts.from_dict({"background_points": 3})
     with pytest.raises(InvalidInputError, match="unknown prompt keys"):
         Prompts.from_dict({"object_pts": []})
     with pytest.raises(InvalidInputError, match="object_box"):

@@ -5,7 +5,8 @@ gradio) in a gradio page and :func:`launch` serves that page on this machine onl
 (``127.0.0.1``) unless told otherwise.
 
 Click-to-prompt (:mod:`easyhoi.app_prompts`): a click on the shown photo adds a point on the held
-object (or, in the "hand point" mode, marks the holding hand); the points are drawn on the photo,
+object (or, in the "hand point" mode, marks the holding hand, and in the "background point" mode
+a point that is not the object); the points are drawn on the photo,
 "Show mask" segments the photo with them and shows the masks, and Run uses them.
 """
 
@@ -46,8 +47,9 @@ __all__ = [
 _INTRO = """\
 # EasyHOI: hand + held object from one photo
 Upload a photo of a hand holding an object and press **Run**. If the wrong object is found,
-click on the held object in the photo (add more clicks for more of it; *hand point* marks the
-holding hand), check it with **Show mask**, and run again. The reconstruction runs on this
+click on the held object in the photo (add more clicks for more of it; *background point*
+marks what the mask takes in that is not the object; *hand point* marks the holding hand), check
+it with **Show mask**, and run again. The reconstruction runs on this
 machine's CPU: about half a minute with the *fast* preset on 2 cores, several minutes with
 *paper*. Same photo, points, preset and seed give the same result.
 """

@@ -37,19 +37,23 @@ __all__ = [
 
 #: Longer side of the photo as shown on the page, in pixels.
 PREVIEW_SIDE = 512
-#: What a click adds: a point on the held object (repeatable) or the point on the holding hand.
-MODES = ("object point", "hand point")
-#: At most this many object points (a few clicks are enough; more is a stuck mouse).
+#: What a click adds: a point on the held object (repeatable), the point on the holding hand, or
+#: a point that is not the object (repeatable: where the mask takes in too much).
+MODES = ("object point", "hand point", "background point")
+#: At most this many object points, and as many background points (a few clicks are enough;
+#: more is a stuck mouse).
 MAX_OBJECT_POINTS = 16
 
 _OBJECT_COLOUR = (40, 220, 90)
 _HAND_COLOUR = (255, 140, 0)
+_BACKGROUND_COLOUR = (230, 40, 60)
+_STATE_PROMPTS = ("object_points", "hand_point", "background_points")
 
 
 def new_state(photo_size: tuple[int, int] | None = None) -> dict:
     """An empty prompt state for a photo of ``photo_size`` (width, height) as stored."""
     size = None if photo_size is None else [int(photo_size[0]), int(photo_size[1])]
-    return {"object_points": [], "hand_point": None, "photo_size": size}
+    return {"object_points": [], "hand_point": None, "background_points": [], "photo_size": size}
 
 
 def load_preview(path, max_upload_mb: float) -> tuple[np.ndarray | None, str, dict]:
@@ -72,7 +76,8 @@ def add_click(state: dict | None, mode: str, xy, shown_size: tuple[int, int]) ->
     """The state after a click at ``xy`` (pixels of the shown image of ``shown_size`` (w, h)).
 
     ``mode`` is one of :data:`MODES`: an object point is appended (beyond
-    :data:`MAX_OBJECT_POINTS`, the oldest but the first is dropped), the hand point replaced.
+    :data:`MAX_OBJECT_POINTS`, the oldest but the first is dropped), the hand point replaced,
+    a background point appended (beyond :data:`MAX_OBJECT_POINTS`, the oldest dropped).
     A click outside the image (or before a photo is loaded) leaves the state as it is.
     """
     state = dict(state or new_state())
@@ -94,6 +99,9 @@ def add_click(state: dict | None, mode: str, xy, shown_size: tuple[int, int]) ->
         # the first point frames the object and picks the hand: past the cap, the oldest of
         # the further points goes
         state["object_points"] = pts[:1] + pts[1:][-(MAX_OBJECT_POINTS - 1) :]
+    elif mode == MODES[2]:
+        pts = list(state.get("background_points") or []) + [[px, py]]
+        state["background_points"] = pts[-MAX_OBJECT_POINTS:]
     else:
         raise InvalidInputError(f"unknown click mode {mode!r}; one of {', '.join(MODES)}")
     return state
@@ -103,7 +111,7 @@ def state_prompts(state: dict | None) -> Prompts | None:
     """The :class:`Prompts` of a state (photo pixels), or None when there is none."""
     if not state:
         return None
-    p = Prompts.from_dict({k: state.get(k) for k in ("object_points", "hand_point")})
+    p = Prompts.from_dict({k: state.get(k) for k in _STATE_PROMPTS})
     return None if p.empty else p
 
 
@@ -121,13 +129,17 @@ def prompt_text(state: dict | None) -> str:
         parts.append(f"object point{'s' if len(p.object_points) > 1 else ''}: {pts}")
     if p.hand_point is not None:
         parts.append(f"hand point: ({p.hand_point[0]:.0f}, {p.hand_point[1]:.0f})")
+    if p.background_points:
+        pts = ", ".join(f"({x:.0f}, {y:.0f})" for x, y in p.background_points)
+        parts.append(f"not the object: {pts}")
     return "; ".join(parts)
 
 
 def draw_prompts(rgb: np.ndarray, state: dict | None, masks=None) -> np.ndarray:
     """The thumbnail with the points drawn (and ``masks`` = (hand, object) tinted, if given).
 
-    Object points are green discs, the hand point an orange disc, both outlined in white.
+    Object points are green discs, the hand point an orange disc, background points red
+    discs with a white cross, all outlined in white.
     """
     from PIL import Image, ImageDraw
 
@@ -148,9 +160,14 @@ def draw_prompts(rgb: np.ndarray, state: dict | None, masks=None) -> np.ndarray:
     points = [(p, _OBJECT_COLOUR) for p in state.get("object_points") or []]
     if state.get("hand_point"):
         points.append((state["hand_point"], _HAND_COLOUR))
+    points += [(p, _BACKGROUND_COLOUR) for p in state.get("background_points") or []]
     for (x, y), colour in points:
         u, v = x * sx, y * sy
         draw.ellipse((u - r, v - r, u + r, v + r), fill=colour, outline=(255, 255, 255), width=2)
+        if colour == _BACKGROUND_COLOUR:  # a cross: "not this"
+            d = 0.5 * r
+            draw.line((u - d, v - d, u + d, v + d), fill=(255, 255, 255), width=2)
+            draw.line((u - d, v + d, u + d, v - d), fill=(255, 255, 255), width=2)
     return np.asarray(pil)
 
 

@@ -10,7 +10,7 @@ Two formats, chosen by the file's extension:
 
 * CSV (``.csv``): a header ``photo,kind,x,y,x1,y1`` (``x1``, ``y1`` optional) and one row per
   prompt; ``kind`` is ``object_point`` (repeatable), ``object_box`` (``x,y`` = top left,
-  ``x1,y1`` = bottom right) or ``hand_point``::
+  ``x1,y1`` = bottom right), ``hand_point`` or ``background_point`` (repeatable)::
 
       photo,kind,x,y,x1,y1
       IMG_1.jpg,object_point,412,310,,
@@ -36,7 +36,8 @@ from easyhoi.perception.prompts import Prompts
 
 __all__ = ["load_prompts_file", "parse_prompts_csv", "parse_prompts_json", "photo_size"]
 
-_KINDS = ("object_point", "object_box", "hand_point")
+_KINDS = ("object_point", "object_box", "hand_point", "background_point")
+_REPEATABLE = {"object_point": "object_points", "background_point": "background_points"}
 
 
 def parse_prompts_json(text: str, source: str = "prompts file") -> dict[str, Prompts]:
@@ -95,9 +96,9 @@ def parse_prompts_csv(text: str, source: str = "prompts file") -> dict[str, Prom
         if any(v != v or v in (float("inf"), float("-inf")) for v in values):
             need = ",".join(names)
             raise InvalidInputError(f"{where}: a {kind} needs numbers {need}, got {row!r}")
-        entry = found.setdefault(photo, {"object_points": []})
-        if kind == "object_point":
-            entry["object_points"].append(values)
+        entry = found.setdefault(photo, {"object_points": [], "background_points": []})
+        if kind in _REPEATABLE:
+            entry[_REPEATABLE[kind]].append(values)
         elif kind in entry:
             raise InvalidInputError(f"{where}: photo '{photo}' has a second {kind}")
         else:

@@ -333,13 +333,14 @@ def segment_hands(
 
 
 def _prompted(segmenter, name: str, prompts: Prompts | None):
-    """``segment(image, hand)`` of ``segmenter``, handing it the object prompts."""
-    if prompts is None or not prompts.has_object_prompt:
+    """``segment(image, hand)`` of ``segmenter``, handing it the object and background
+    prompts."""
+    if prompts is None or not (prompts.has_object_prompt or prompts.background_points):
         return segmenter.segment
     if "prompts" not in inspect.signature(segmenter.segment).parameters:
         raise InvalidInputError(
             f"the segmenter {name!r} takes no object prompts; choose one that does "
-            "(see `easyhoi doctor`) or leave out --object-point/--object-box"
+            "(see `easyhoi doctor`) or leave out --object-point/--object-box/--background-point"
         )
     return functools.partial(segmenter.segment, prompts=prompts)
 

@@ -42,9 +42,12 @@ _ADVICE = {
     },
 }
 _ADVICE_MORE = {
-    "cli": "add --object-point X,Y on parts of the object the mask misses, or an --object-box",
-    "batch": "add object_point rows on parts of the object the mask misses, or an object_box",
-    "demo": "click on the parts of the object the mask misses and run again",
+    "cli": "add --object-point X,Y on parts of the object the mask misses, --background-point "
+    "X,Y on what it takes in beyond the object, or an --object-box",
+    "batch": "add object_point rows on parts of the object the mask misses, background_point "
+    "rows on what it takes in beyond the object, or an object_box",
+    "demo": "click on the parts of the object the mask misses (or, as background points, on "
+    "what it takes in beyond the object) and run again",
 }
 
 
@@ -52,7 +55,8 @@ def advice(mask: str, where: str = "cli", prompted: bool = False) -> str:
     """What to do about a weak ``mask`` ("hand", "object", "amodal", or the hand's
     "keypoints"), for ``where``.
 
-    ``prompted``: the object was already pointed at (then: more points, or a box).
+    ``prompted``: the object was already pointed at (then: more object or background points,
+    or a box).
     """
     kind = mask if mask in ("hand", "keypoints") else "object"
     if kind == "object" and prompted:

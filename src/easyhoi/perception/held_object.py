@@ -89,7 +89,11 @@ class Scene:
         hand: (h, w) bool mask of the hand whose object is sought.
         kp: (21, 2) its keypoints in crop pixels.
         skin_d2: (h, w) squared normalised distance to its colour model.
-        other_hands: (h, w) bool pixels of the other detected hands.
+        other_hands: (h, w) bool pixels of the other detected hands (and the disks of the
+            user's background points, which are never the object either).
+        background_rings: (h, w) bool rings around the user's background points: a candidate
+            covering most of one encloses the point and is not the object
+            (:mod:`easyhoi.perception.not_object`).
     """
 
     lab: np.ndarray
@@ -97,6 +101,7 @@ class Scene:
     kp: np.ndarray
     skin_d2: np.ndarray
     other_hands: np.ndarray
+    background_rings: tuple[np.ndarray, ...] = ()
 
     @property
     def palm(self) -> float:

@@ -27,7 +27,7 @@ import numpy as np
 from easyhoi.errors import InvalidInputError
 from easyhoi.io.image import check_image
 from easyhoi.perception import held_object as ho
-from easyhoi.perception import ranker
+from easyhoi.perception import not_object, ranker
 from easyhoi.perception.base import HandDetection, Segmentation, register
 from easyhoi.perception.prompts import Prompts
 from easyhoi.perception.proposals import Proposals, propose, propose_scales
@@ -263,6 +263,9 @@ class ClassicalHOISegmenter:
         else:
             props = self._auto_proposals(w)
             hyp = ranker.rank(props, scene, self.rank_top) if props.regions else None
+            if hyp is not None and scene.background_rings:  # never one around a background point
+                out = not_object.enclosing_regions(props, list(scene.background_rings))
+                hyp.scores[out] = -np.inf
             best, obj = None, np.zeros(shape, bool)
             if hyp is not None and np.isfinite(hyp.scores).any():
                 best, obj, hyp = self._refine_best(img, props, scene, hyp, excl)
@@ -357,7 +360,16 @@ class ClassicalHOISegmenter:
             ko = to_work(_check_keypoints(o))
             other |= draw_skeleton(shape, ko, 0.3 * palm_length(ko), palm=True)
         other &= ~hand_m
-        scene = ho.Scene(lab=lab, hand=hand_m, kp=kp, skin_d2=d2, other_hands=other)
+        rings = ()
+        if prompts is not None and prompts.background_points:
+            # the user's background points: never the object, like the other hands
+            bg = not_object.disks(shape, to_work(prompts.background_points), L)
+            rings = tuple(not_object.rings(shape, bg, hand_m | other))
+            for d in bg:
+                other |= d & ~hand_m
+        scene = ho.Scene(
+            lab=lab, hand=hand_m, kp=kp, skin_d2=d2, other_hands=other, background_rings=rings
+        )
         return _Work(
             full_shape=(H, W),
             crop=(x0, y0, x1, y1),
@@ -407,7 +419,7 @@ class ClassicalHOISegmenter:
         for i in ho.distinct_best(hyp, self.refine_top):
             raw = props.mask(props.regions[i])
             m = fill_holes(ho.refine(img, raw, excl, self.iterations, self.seed)) & ~excl
-            if not m.any():
+            if not m.any() or not_object.encloses(m, list(scene.background_rings)):
                 continue
             # the refined mask's cues and held-object evidence; its ranking score stays the
             # hypothesis's (the ranking and its margin judge the proposals, GrabCut only

@@ -23,6 +23,7 @@ import numpy as np
 
 from easyhoi.perception import held_object as ho
 from easyhoi.perception.click import click_object, click_proposals
+from easyhoi.perception.not_object import encloses, enclosing_regions
 from easyhoi.perception.proposals import Proposals
 from easyhoi.perception.skin import fill_holes
 
@@ -108,6 +109,7 @@ def prompted_object(
         size = float(props.sizes[idx].sum())
         fit[i] = (a_in / max(size, 1.0)) * (a_in / box_area)
     ok &= fit > 0.05
+    ok &= ~enclosing_regions(props, list(scene.background_rings))
     if not ok.any():
         return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None
     exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
@@ -141,12 +143,16 @@ def prompted_object(
             n_cc, cc = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
             keep = np.unique(cc[sure & m])
             m = np.isin(cc, keep[keep > 0])
+        if encloses(m, list(scene.background_rings)):
+            continue
         c = ho.mask_cues(m, scene)[None]
         a_in = float((m & boxmask).sum())
         f = (a_in / max(1.0, float(m.sum()))) * (a_in / max(1.0, float(boxmask.sum())))
         sc = float(prompt_score(c)[0]) + 4.0 * f
         if sc > best_s:
             best, obj, best_s = i, m, sc
+    if obj is None:  # every refined level took in a background point
+        return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), hyp, None
     return obj, hyp, best
 
 

@@ -1,8 +1,10 @@
 """User prompts that steer perception when the automatic choice is wrong.
 
 A prompt is one gesture on the photo: a point inside the held object (``--object-point X,Y``,
-repeatable), a box around it (``--object-box X0,Y0,X1,Y1``) or a point on the hand that holds it
-(``--hand-point X,Y``). Coordinates are pixels of the original photo, x right, y down.
+repeatable), a box around it (``--object-box X0,Y0,X1,Y1``), a point on the hand that holds it
+(``--hand-point X,Y``) or a point that is not the object (``--background-point X,Y``,
+repeatable: where the mask takes in what is not the object). Coordinates are pixels of the
+original photo, x right, y down.
 """
 
 from __future__ import annotations
@@ -22,15 +24,22 @@ class Prompts:
         object_points: ((x, y), ...) points inside the held object.
         object_box: (x0, y0, x1, y1) box around the held object, or None.
         hand_point: (x, y) point on the hand that holds the object, or None.
+        background_points: ((x, y), ...) points that are not the object.
     """
 
     object_points: tuple[tuple[float, float], ...] = ()
     object_box: tuple[float, float, float, float] | None = None
     hand_point: tuple[float, float] | None = None
+    background_points: tuple[tuple[float, float], ...] = ()
 
     @property
     def empty(self) -> bool:
-        return not self.object_points and self.object_box is None and self.hand_point is None
+        return (
+            not self.object_points
+            and self.object_box is None
+            and self.hand_point is None
+            and not self.background_points
+        )
 
     @property
     def has_object_prompt(self) -> bool:
@@ -41,6 +50,7 @@ class Prompts:
         for name, pts in (
             ("--object-point", self.object_points),
             ("--hand-point", () if self.hand_point is None else (self.hand_point,)),
+            ("--background-point", self.background_points),
         ):
             for x, y in pts:
                 if not (0 <= x < width and 0 <= y < height):
@@ -66,6 +76,7 @@ class Prompts:
             "object_points": [list(p) for p in self.object_points],
             "object_box": None if self.object_box is None else list(self.object_box),
             "hand_point": None if self.hand_point is None else list(self.hand_point),
+            "background_points": [list(p) for p in self.background_points],
         }
 
     @classmethod
@@ -73,16 +84,21 @@ class Prompts:
         """Inverse of :meth:`to_dict`; validates types (raises InvalidInputError)."""
         if not isinstance(d, dict):
             raise InvalidInputError(f"prompts must be a mapping, got {type(d).__name__}")
-        unknown = set(d) - {"object_points", "object_box", "hand_point"}
+        unknown = set(d) - {"object_points", "object_box", "hand_point", "background_points"}
         if unknown:
             raise InvalidInputError(f"unknown prompt keys: {', '.join(sorted(unknown))}")
         pts = d.get("object_points") or []
         box = d.get("object_box")
         hp = d.get("hand_point")
+        bg = d.get("background_points") or []
+        for name, seq in (("object_points", pts), ("background_points", bg)):
+            if not isinstance(seq, (list, tuple)):
+                raise InvalidInputError(f"{name} must be a list of [x, y] points, got {seq!r}")
         return cls(
             object_points=tuple(_numbers(p, 2, "object_points entry") for p in pts),
             object_box=None if box is None else _numbers(box, 4, "object_box"),
             hand_point=None if hp is None else _numbers(hp, 2, "hand_point"),
+            background_points=tuple(_numbers(p, 2, "background_points entry") for p in bg),
         )
 
 

@@ -18,7 +18,8 @@ Each mask's confidence is SAM's own prediction of its IoU (:func:`mask_confidenc
 
 Prompts take precedence over the detector: an ``object_box`` replaces its box, and
 ``object_points`` are given to SAM as positive points (with the box when there is one); with
-either, the detector is not run.
+either, the detector is not run. ``background_points`` are given to SAM as negative points
+whichever gave the box.
 
 The detector is OWLv2 (``Owlv2ForObjectDetection``, e.g. a saved
 ``google/owlv2-base-patch16-ensemble``) or Grounding DINO (``GroundingDinoForObjectDetection``,
@@ -242,7 +243,13 @@ class GroundedSamSegmenter:
             box = tuple(float(v) for v in boxes[best])
             meta["detector_score"] = float(scores[best])
         # a box alone is SAM's box prompt: its centre may lie on the fingers in front
-        obj = self.sam.predict(img, np.asarray(points, float) if points else None, box)
+        neg = () if prompts is None else tuple(prompts.background_points)
+        obj = self.sam.predict(
+            img,
+            np.asarray(points, float) if points else None,
+            box,
+            negative=np.asarray(neg, float) if neg else None,
+        )
         obj &= ~hand_mask
         obj_score = float(np.max(self.sam.last_scores))
         meta.update(hand_sam_iou=hand_score, object_sam_iou=obj_score,

@@ -114,8 +114,10 @@ class SamAmodalSegmenter:
         image: np.ndarray,
         points: np.ndarray | None,
         box: tuple[float, float, float, float] | None = None,
+        negative: np.ndarray | None = None,
     ) -> np.ndarray:
-        """(H, W) bool: the best of SAM's three masks for positive ``points`` and/or a ``box``.
+        """(H, W) bool: the best of SAM's three masks for positive ``points`` and/or a ``box``
+        (and ``negative`` points: (M, 2) (u, v) pixels that are not the object).
 
         The image embedding of the latest photo is kept, so prompting the same photo again
         costs only the mask decoder.
@@ -127,11 +129,17 @@ class SamAmodalSegmenter:
         img = check_image(image)
         H, W = img.shape[:2]
         pts = np.zeros((0, 2)) if points is None else np.asarray(points, np.float64).reshape(-1, 2)
+        neg = np.zeros((0, 2)) if negative is None else np.asarray(negative, np.float64)
+        neg = neg.reshape(-1, 2)
         if not np.isfinite(pts).all() or (len(pts) == 0 and box is None):
             raise InvalidInputError("SAM needs finite (u, v) point prompts, a box, or both")
+        if not np.isfinite(neg).all():
+            raise InvalidInputError("SAM needs finite (u, v) negative points")
         kw = {}
-        if len(pts):
-            kw.update(input_points=[[pts.tolist()]], input_labels=[[[1] * len(pts)]])
+        if len(pts) or len(neg):
+            allp = np.concatenate([pts, neg])
+            labels = [1] * len(pts) + [0] * len(neg)
+            kw.update(input_points=[[allp.tolist()]], input_labels=[[labels]])
         if box is not None:
             b = [float(x) for x in np.asarray(box, dtype=np.float64).reshape(4)]
             if not (b[0] < b[2] and b[1] < b[3]):
