@@ -568,8 +568,10 @@ _FAST = EasyHOIConfig(
             penetration_threshold=-0.002,
             # the photo's evidence: the detector's 2D keypoints (robust, a tenth of the hand's
             # size as the Geman-McClure scale) and a pose prior, so that contact and penetration
-            # cannot bend fingers where the photo or anatomy says no
-            keypoint_weight=20.0,
+            # cannot bend fingers where the photo or anatomy says no; at 40 they move the
+            # fingers where the photo leaves them free (docs/benchmark.md, "Why the fast
+            # preset is what it is")
+            keypoint_weight=40.0,
             keypoint_sigma=0.1,
             # ... and the hand as a whole may not leave them (penetration pushing the hand
             # across the photo: the robust term is flat once every joint is off)
