@@ -95,3 +95,18 @@ def test_points_outside_the_crop_make_no_disk():
     assert not_object.disks((10, 20), np.array([[25.0, 5.0], [5.0, -1.0]]), 10.0) == []
     (d,) = not_object.disks((10, 20), np.array([[5.0, 5.0]]), 10.0)
     assert d[5, 5] and d.sum() == 13  # radius 2 px at least
+
+
+def test_a_background_points_patch_is_its_colour_within_half_a_palm():
+    import cv2
+
+    img = np.full((S, S, 3), 200, np.uint8)
+    img[:, 130:] = (40, 40, 200)  # an edge at x = 130
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float64)
+    (d,) = not_object.disks((S, S), np.array([[110.0, 120.0]]), 40.0)
+    p = not_object.patch(lab, d, 40.0)
+    assert p[d].all()  # the disk itself
+    reach = 0.5 * 40.0
+    assert p[120, 110 - int(reach) + 1] and not p[120, 110 - int(reach) - 2]  # up to 0.5 L
+    assert p[120, 129] and not p[120, 130:].any()  # not across the colour edge
+    assert p.sum() < np.pi * reach**2 + 10

@@ -366,7 +366,7 @@ class ClassicalHOISegmenter:
             bg = not_object.disks(shape, to_work(prompts.background_points), L)
             rings = tuple(not_object.rings(shape, bg, hand_m | other))
             for d in bg:
-                other |= d & ~hand_m
+                other |= not_object.patch(lab, d, L) & ~hand_m
         scene = ho.Scene(
             lab=lab, hand=hand_m, kp=kp, skin_d2=d2, other_hands=other, background_rings=rings
         )

@@ -1,13 +1,18 @@
 """Background points: pixels the user marks as not the held object (``--background-point``).
 
 A background point answers a leak: the mask takes in something that is not the object (the
-table the object stands on, a sleeve of the object's colour). Each point becomes a small disk
-that every segmentation path treats like another hand's pixels: sure background for GrabCut
-(whose graph cut then has to separate the object points from it along the weakest edge
-between them) and left out of the region proposals. That alone is not enough: a region or a
-GrabCut result can flow around the disk, so a candidate that *encloses* a background point (the
-point lies inside the region's outline) is dropped too. A disk is enclosed when most of the
-ring around it lies in the candidate.
+table the object stands on, a sleeve of the object's colour). Each point becomes a small disk,
+grown into the patch it lies on (:func:`patch`: the connected pixels of the disk's colour within
+half a palm length), that every segmentation path treats like another hand's pixels: sure
+background for GrabCut (whose colour model then learns what the user marked, and whose graph
+cut has to separate the object points from it along the weakest edge between them) and left
+out of the region proposals. The patch, not the disk alone: a leak is a region of the object's
+colour or near it, and a few pixels of it do not move GrabCut's colour model, so a region of
+that colour beside the disk wins instead. The reach is bounded because the object may have
+the same colour farther on (a white pen on a white sleeve). That alone is not enough: a region
+or a GrabCut result can flow around the patch, so a candidate that *encloses* a background
+point (the point lies inside the region's outline) is dropped too. A point is enclosed when
+most of the ring around its disk lies in the candidate.
 
 The disk's radius is in palm lengths (:data:`RADIUS`), like every length of the segmenter, so
 it does not depend on the photo's resolution: a tenth of a palm, half a finger's width, marks
@@ -72,3 +77,23 @@ def enclosing_regions(props: Proposals, ring_masks: list[np.ndarray]) -> np.ndar
             covered = member @ segment_sums(props.labels, ring, props.n_base)
             out |= np.asarray(covered).reshape(-1) > ENCLOSED * total
     return out
+
+
+#: Reach of a background point's patch (palm lengths) and the largest colour difference (Lab
+#: distance to the disk's median colour) of the pixels it takes in.
+PATCH_REACH = 0.5
+PATCH_COLOUR = 10.0
+
+
+def patch(lab: np.ndarray, disk: np.ndarray, palm: float) -> np.ndarray:
+    """The disk grown over the connected pixels of its colour within PATCH_REACH L."""
+    med = np.median(lab[disk], axis=0)
+    near = np.linalg.norm(lab - med, axis=-1) < PATCH_COLOUR
+    ys, xs = np.nonzero(disk)
+    c = np.array([xs.mean(), ys.mean()])
+    h, w = disk.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    near &= (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= (PATCH_REACH * palm) ** 2
+    n, cc = cv2.connectedComponents((near | disk).astype(np.uint8), connectivity=8)
+    keep = np.unique(cc[disk])
+    return np.isin(cc, keep[keep > 0])
