@@ -45,6 +45,16 @@ def test_a_background_point_takes_the_leak_away():
     assert np.array_equal(seg.object_mask, again.object_mask)
 
 
+def test_a_background_point_takes_the_leak_out_of_a_box():
+    img, obj, leak = leaky_scene()
+    box = (165.0, 25.0, 225.0, 133.0)  # around the object and the patch below it
+    boxed = segment(img, object_box=box)
+    assert iou(boxed.object_mask, obj | leak) > 0.9
+    seg = segment(img, object_box=box, background_points=((195.0, 112.0),))
+    assert iou(seg.object_mask, obj) > 0.9
+    assert (seg.object_mask & leak).sum() < 0.05 * leak.sum()
+
+
 def test_a_background_point_away_from_the_object_changes_nothing():
     img, obj, leak = leaky_scene()
     one = click(img, 195.0, 60.0)
