@@ -89,7 +89,7 @@ def test_enclosing_regions_match_the_per_mask_test():
     props = propose(img, lab, np.zeros((S, S), bool), 100.0, 20)
     disks = not_object.disks((S, S), np.array([[120.0, 120.0], [10.0, 230.0]]), 40.0)
     assert len(disks) == 2 and all(d.sum() > 40 for d in disks)
-    rings = not_object.rings((S, S), disks, np.zeros((S, S), bool))
+    rings = not_object.rings(disks, np.zeros((S, S), bool))
     fast = not_object.enclosing_regions(props, rings)
     slow = np.array([not_object.encloses(props.mask(r), rings) for r in props.regions])
     assert fast.shape == (len(props.regions),)

@@ -356,7 +356,7 @@ def settle(
     n_iter = min(iterations, SETTLE_ITERATIONS)
     r = ho.refine(img, m, forbidden, n_iter, seed, sure=sure, margin=SETTLE_BAND * L)
     r = fill_holes(r) & ~forbidden
-    return m if encloses(r, list(scene.background_rings)) else r
+    return m if encloses(r, scene.background_rings) else r
 
 
 def click_proposals(
@@ -485,10 +485,9 @@ def add_click(
         return obj
     forbidden, exclude, codes, grad, inner = _cue_inputs(img, scene, inside)
     best, best_score = None, -np.inf
-    rings = list(scene.background_rings)
     for m, window in click_candidates(img, scene, q, forbidden, iterations, seed, ADD_WINDOWS):
         u = fill_holes(obj | take_back_from_hand(m, scene))
-        if encloses(u, rings):  # it took in what the user marked as not the object
+        if encloses(u, scene.background_rings):  # around a point marked not the object
             continue
         c = candidate_cues(u, pts, None, scene, exclude, codes, grad, inner)
         # a grown part that runs into its window leaks (the object around it is not)
@@ -527,10 +526,9 @@ def scored_candidates(
     forbidden, exclude, codes, grad, inner = _cue_inputs(img, scene, inside)
     cands = click_candidates(img, scene, p, forbidden, iterations, seed)
     cands += [(m, None) for m in regions if m.any()]
-    rings = list(scene.background_rings)
     scored = []
     for m, window in cands:
-        if encloses(m, rings):  # it takes in what the user marked as not the object
+        if encloses(m, scene.background_rings):  # around a point marked not the object
             continue
         c = candidate_cues(m, p, window, scene, exclude, codes, grad, inner)
         scored.append((click_score(c), c, m))

@@ -263,9 +263,8 @@ class ClassicalHOISegmenter:
         else:
             props = self._auto_proposals(w)
             hyp = ranker.rank(props, scene, self.rank_top) if props.regions else None
-            if hyp is not None and scene.background_rings:  # never one around a background point
-                out = not_object.enclosing_regions(props, list(scene.background_rings))
-                hyp.scores[out] = -np.inf
+            if hyp is not None:  # never a region around a background point
+                hyp.scores[not_object.enclosing_regions(props, scene.background_rings)] = -np.inf
             best, obj = None, np.zeros(shape, bool)
             if hyp is not None and np.isfinite(hyp.scores).any():
                 best, obj, hyp = self._refine_best(img, props, scene, hyp, excl)
@@ -364,7 +363,7 @@ class ClassicalHOISegmenter:
         if prompts is not None and prompts.background_points:
             # the user's background points: never the object, like the other hands
             bg = not_object.disks(shape, to_work(prompts.background_points), L)
-            rings = tuple(not_object.rings(shape, bg, hand_m | other))
+            rings = not_object.rings(bg, hand_m | other)
             for d in bg:
                 other |= not_object.patch(lab, d, L) & ~hand_m
         scene = ho.Scene(
@@ -419,7 +418,7 @@ class ClassicalHOISegmenter:
         for i in ho.distinct_best(hyp, self.refine_top):
             raw = props.mask(props.regions[i])
             m = fill_holes(ho.refine(img, raw, excl, self.iterations, self.seed)) & ~excl
-            if not m.any() or not_object.encloses(m, list(scene.background_rings)):
+            if not m.any() or not_object.encloses(m, scene.background_rings):
                 continue
             # the refined mask's cues and held-object evidence; its ranking score stays the
             # hypothesis's (the ranking and its margin judge the proposals, GrabCut only

@@ -21,6 +21,8 @@ the spot without reaching across a typical object's edge next to it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import cv2
 import numpy as np
 
@@ -30,6 +32,10 @@ from easyhoi.perception.proposals import Proposals, membership, segment_sums
 RADIUS = 0.1
 #: Share of the ring around a disk (off the hands) that a candidate covers when it encloses it.
 ENCLOSED = 0.5
+#: Reach of a background point's patch (palm lengths) and the largest colour difference (Lab
+#: distance to the disk's median colour) of the pixels it takes in.
+PATCH_REACH = 0.5
+PATCH_COLOUR = 10.0
 
 
 def disks(shape: tuple[int, int], points: np.ndarray, palm: float) -> list[np.ndarray]:
@@ -45,17 +51,13 @@ def disks(shape: tuple[int, int], points: np.ndarray, palm: float) -> list[np.nd
     return out
 
 
-def rings(shape: tuple[int, int], disk_masks: list[np.ndarray], off: np.ndarray) -> list:
+def rings(disk_masks: Sequence[np.ndarray], off: np.ndarray) -> tuple[np.ndarray, ...]:
     """The ring (2 px wide) around each disk, without the pixels of ``off`` (the hands)."""
     k = np.ones((5, 5), np.uint8)
-    out = []
-    for d in disk_masks:
-        ring = cv2.dilate(d.astype(np.uint8), k).astype(bool) & ~d & ~off
-        out.append(ring)
-    return out
+    return tuple(cv2.dilate(d.astype(np.uint8), k).astype(bool) & ~d & ~off for d in disk_masks)
 
 
-def encloses(mask: np.ndarray, ring_masks: list[np.ndarray]) -> bool:
+def encloses(mask: np.ndarray, ring_masks: Sequence[np.ndarray]) -> bool:
     """Whether ``mask`` encloses any background point (covers most of the ring around it)."""
     for ring in ring_masks:
         n = int(ring.sum())
@@ -64,7 +66,7 @@ def encloses(mask: np.ndarray, ring_masks: list[np.ndarray]) -> bool:
     return False
 
 
-def enclosing_regions(props: Proposals, ring_masks: list[np.ndarray]) -> np.ndarray:
+def enclosing_regions(props: Proposals, ring_masks: Sequence[np.ndarray]) -> np.ndarray:
     """(n_regions,) bool: the proposals that enclose a background point."""
     n = len(props.regions)
     out = np.zeros(n, bool)
@@ -77,12 +79,6 @@ def enclosing_regions(props: Proposals, ring_masks: list[np.ndarray]) -> np.ndar
             covered = member @ segment_sums(props.labels, ring, props.n_base)
             out |= np.asarray(covered).reshape(-1) > ENCLOSED * total
     return out
-
-
-#: Reach of a background point's patch (palm lengths) and the largest colour difference (Lab
-#: distance to the disk's median colour) of the pixels it takes in.
-PATCH_REACH = 0.5
-PATCH_COLOUR = 10.0
 
 
 def patch(lab: np.ndarray, disk: np.ndarray, palm: float) -> np.ndarray:

@@ -109,7 +109,7 @@ def prompted_object(
         size = float(props.sizes[idx].sum())
         fit[i] = (a_in / max(size, 1.0)) * (a_in / box_area)
     ok &= fit > 0.05
-    ok &= ~enclosing_regions(props, list(scene.background_rings))
+    ok &= ~enclosing_regions(props, scene.background_rings)
     if not ok.any():
         return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None
     exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
@@ -143,7 +143,7 @@ def prompted_object(
             n_cc, cc = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
             keep = np.unique(cc[sure & m])
             m = np.isin(cc, keep[keep > 0])
-        if encloses(m, list(scene.background_rings)):
+        if encloses(m, scene.background_rings):
             continue
         c = ho.mask_cues(m, scene)[None]
         a_in = float((m & boxmask).sum())
