@@ -164,3 +164,20 @@ def test_hand_masks_on_development_photos(shared_data):
     assert len(scores["tune"]) >= 20 and len(scores["check"]) >= 20
     assert np.mean(scores["tune"]) >= 0.70
     assert np.mean(scores["check"]) >= 0.62
+
+
+def test_components_at_keeps_the_seeded_8_connected_pieces():
+    from scipy import ndimage
+
+    rng = np.random.default_rng(3)
+    mask = rng.random((40, 50)) < 0.45
+    seed = np.zeros_like(mask)
+    seed[[5, 20, 33], [7, 25, 40]] = True
+    seed[0, 0] = True  # a seed pixel off the mask selects nothing
+    mask[0, 0] = False
+    got = skin.components_at(mask, seed)
+    lab, _ = ndimage.label(mask, structure=np.ones((3, 3)))
+    ids = {int(lab[y, x]) for y, x in zip(*np.nonzero(seed), strict=True)} - {0}
+    want = np.isin(lab, sorted(ids))
+    assert ids and np.array_equal(got, want)
+    assert not skin.components_at(mask, np.zeros_like(mask)).any()

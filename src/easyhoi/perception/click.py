@@ -29,7 +29,7 @@ import numpy as np
 from easyhoi.perception import held_object as ho
 from easyhoi.perception.not_object import encloses
 from easyhoi.perception.proposals import Proposals, propose
-from easyhoi.perception.skin import SKIN_D2, draw_skeleton, fill_holes, grabcut
+from easyhoi.perception.skin import SKIN_D2, components_at, draw_skeleton, fill_holes, grabcut
 
 #: Working windows: half-sides in palm lengths. From a small object next to the fingers to one
 #: a few hands across.
@@ -86,12 +86,6 @@ def _disk(shape, p, r) -> np.ndarray:
     out = np.zeros(shape, np.uint8)
     cv2.circle(out, (int(round(p[0])), int(round(p[1]))), max(1, int(round(r))), 1, -1)
     return out.astype(bool)
-
-
-def _component_at(mask: np.ndarray, seed: np.ndarray) -> np.ndarray:
-    n, cc = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    keep = np.unique(cc[seed & mask])
-    return np.isin(cc, keep[keep > 0])
 
 
 def edge_strength(mask: np.ndarray, grad: np.ndarray, exclude: np.ndarray) -> float:
@@ -257,7 +251,7 @@ def click_candidates(
         fg = np.zeros((h, w), bool)
         fg[sub] = grabcut(np.ascontiguousarray(img[sub]), init[sub], n_iter, seed)
         fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
-        m = fill_holes(_component_at(fg | sure, sure)) & ~core
+        m = fill_holes(components_at(fg | sure, sure)) & ~core
         if m.sum() > sure.sum():
             out.append((m, window))
             j = join_across_hand(fg & ~core, m, scene.hand, L)
@@ -335,7 +329,7 @@ def take_back_from_hand(m: np.ndarray, scene: ho.Scene) -> np.ndarray:
     add = np.zeros((h, w), np.uint8)
     add[ys[ok], xs[ok]] = 1
     add = cv2.morphologyEx(add, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
-    return _component_at(m | add, m)
+    return components_at(m | add, m)
 
 
 def settle(
@@ -401,7 +395,7 @@ def click_proposals(
         for r in pr.regions:
             if lab in r:
                 m = (pr.mask(r) | sure) & ~forbidden & ~rim
-                out.append(_component_at(m | sure, sure))
+                out.append(components_at(m | sure, sure))
     return out
 
 

@@ -37,7 +37,7 @@ import numpy as np
 
 from easyhoi.perception import grasp_cues as gc
 from easyhoi.perception.proposals import Proposals, membership, segment_sums
-from easyhoi.perception.skin import SKIN_D2, grabcut, hand_axis, palm_length
+from easyhoi.perception.skin import SKIN_D2, components_at, grabcut, hand_axis, palm_length
 
 #: A finger touches a region closer than this to its last two bones, in palm lengths (a finger
 #: is about 0.2 L wide, so its pad surface lies about 0.1 L from the bone).
@@ -358,9 +358,7 @@ def refine(
     init[forbidden & ~core] = cv2.GC_BGD
     fg = grabcut(img, init, iterations, seed)
     if core.any():
-        n, cc = cv2.connectedComponents(fg.astype(np.uint8), connectivity=8)
-        keep = np.unique(cc[core & fg])
-        fg = np.isin(cc, keep[keep > 0])
+        fg = components_at(fg, core)
     fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
     if not fallback:
         return fg if fg.any() else mask

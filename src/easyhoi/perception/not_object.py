@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from easyhoi.perception.proposals import Proposals, membership, segment_sums
+from easyhoi.perception.skin import components_at
 
 #: Radius of a background point's disk, in palm lengths.
 RADIUS = 0.1
@@ -90,6 +91,4 @@ def patch(lab: np.ndarray, disk: np.ndarray, palm: float) -> np.ndarray:
     h, w = disk.shape
     yy, xx = np.mgrid[0:h, 0:w]
     near &= (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= (PATCH_REACH * palm) ** 2
-    n, cc = cv2.connectedComponents((near | disk).astype(np.uint8), connectivity=8)
-    keep = np.unique(cc[disk])
-    return np.isin(cc, keep[keep > 0])
+    return components_at(near | disk, disk)

@@ -25,7 +25,7 @@ from easyhoi.perception import held_object as ho
 from easyhoi.perception.click import click_object, click_proposals
 from easyhoi.perception.not_object import encloses, enclosing_regions
 from easyhoi.perception.proposals import Proposals
-from easyhoi.perception.skin import fill_holes
+from easyhoi.perception.skin import components_at, fill_holes
 
 
 def _point_disks(shape: tuple[int, int], pts: np.ndarray, radius: float) -> np.ndarray:
@@ -140,9 +140,7 @@ def prompted_object(
         ) | (sure & ~forbidden)
         m = fill_holes(m) & ~forbidden
         if sure.any():  # the object is the part that contains the user's points
-            n_cc, cc = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
-            keep = np.unique(cc[sure & m])
-            m = np.isin(cc, keep[keep > 0])
+            m = components_at(m, sure)
         if encloses(m, scene.background_rings):
             continue
         c = ho.mask_cues(m, scene)[None]

@@ -129,6 +129,14 @@ def components(mask: np.ndarray, min_area: int = 1) -> list[np.ndarray]:
     return [lab == i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= min_area]
 
 
+def components_at(mask: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """The 8-connected components of ``mask`` that contain a pixel of ``seed`` (all False when
+    none does)."""
+    n, cc = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    keep = np.unique(cc[seed & mask])
+    return np.isin(cc, keep[keep > 0])
+
+
 def hand_mask(
     img: np.ndarray,
     lab: np.ndarray,
