@@ -4,6 +4,7 @@ crops, against a plain computation, and on a real photo."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -13,6 +14,8 @@ pytest.importorskip("mediapipe")
 
 from easyhoi.perception import mediapipe_hand as mph  # noqa: E402
 from easyhoi.perception.base import HandDetection  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _hand(w=200.0, h=160.0):
@@ -117,3 +120,66 @@ def test_confidence_on_a_photo(shared_data):
     # no hand in the picture any more: the crops find nothing to measure
     grey = np.full_like(image, 128)
     assert hands.keypoint_confidence(grey, det) is None
+
+
+def test_mirrored_look_maps_the_mirrored_hand_back(monkeypatch):
+    """The hand found in the mirrored photo comes back with x -> W - x, its 3D x negated and
+    its side swapped; the mirrored hand nearest the detection is taken, none beyond half the
+    hand's size."""
+    W = 200
+    image = np.zeros((160, W, 3), np.uint8)
+    kp = _hand()
+    det = HandDetection(kp, None, "right", 1.0)
+    k3 = np.random.default_rng(1).normal(0, 0.05, (21, 3))
+    mirrored = kp.copy()
+    mirrored[:, 0] = W - mirrored[:, 0]
+    near = HandDetection(mirrored + 2.0, k3, "left", 0.8, meta={"pass": "palm"})
+    far = HandDetection(mirrored + 60.0, None, "right", 0.9, meta={"pass": "palm"})
+    hands = mph.MediaPipeHands()
+    got = []
+
+    def detect(img):
+        got.append(img.copy())
+        return [far, near]
+
+    monkeypatch.setattr(hands, "detect", detect)
+    monkeypatch.setattr(hands, "keypoint_confidence", lambda img, d: np.full(21, 0.7))
+    image[:, :50] = 255  # the detector is shown the photo mirrored
+    back, conf = hands.mirrored_look(image, det)
+    assert (got[0][:, -50:] == 255).all() and (got[0][:, :-50] == 0).all()
+    want = mirrored + 2.0
+    want[:, 0] = W - want[:, 0]
+    np.testing.assert_allclose(back.keypoints2d, want)
+    np.testing.assert_allclose(back.keypoints3d, k3 * [-1, 1, 1])
+    assert back.side == "right" and back.meta["pass"] == "mirrored palm"
+    np.testing.assert_allclose(conf, 0.7)
+    monkeypatch.setattr(hands, "detect", lambda img: [far])
+    assert hands.mirrored_look(image, det) is None
+
+
+def test_mirrored_look_steadies_a_swapped_skeleton(shared_data):
+    """The photo where the detector swaps the thumb and the fingers (median confidence 0.2): in
+    the mirrored photo it finds the hand with the thumb on its side, and is sure of it."""
+    import json
+
+    from easyhoi.io.image import load_image
+    from easyhoi.perception.chain import second_look
+
+    ref = json.loads((ROOT / "tests/data/keypoint_refs/ihoi-demo_07.json").read_text())
+    truth = np.array(ref["keypoints"], float)[:, :2]
+    image = load_image(shared_data / ref["image"]).rgb
+    hands = mph.MediaPipeHands()
+    det = min(
+        hands.detect(image), key=lambda d: np.linalg.norm(d.keypoints2d - truth, axis=1).mean()
+    )
+    conf = hands.keypoint_confidence(image, det)
+    err = np.linalg.norm(det.keypoints2d - truth, axis=1).mean()
+    look = second_look(hands, image, det, conf)
+    assert np.median(conf) < 0.5 and look is not None
+    back, look_conf = look
+    err_back = np.linalg.norm(back.keypoints2d - truth, axis=1).mean()
+    assert np.median(look_conf) > 0.8 and err_back < 0.6 * err
+    # the thumb's tip ends on the side of the hand where the reference has it
+    assert np.linalg.norm(back.keypoints2d[4] - truth[4]) < 0.5 * np.linalg.norm(
+        det.keypoints2d[4] - truth[4]
+    )

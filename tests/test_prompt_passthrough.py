@@ -175,6 +175,59 @@ def test_the_detectors_keypoint_confidence_reaches_the_input(config, monkeypatch
     assert report.confidence["keypoints"].score == 0.0 and report.low_confidence == ["keypoints"]
 
 
+def test_an_unsure_skeleton_is_replaced_by_a_steadier_mirrored_look(config, monkeypatch):
+    """Keypoints the detector is unsure of (median confidence < 0.5) get a second look at the
+    mirrored photo; the steadier skeleton is what the hand is fitted to, the masks stay the
+    first look's."""
+    seen = []
+
+    def holds(image, hand, prompts=None):
+        seen.append(float(hand.keypoints2d[:, 1].mean()))
+        return right_hand_holds()().segment(image, hand, prompts)
+
+    class Unsure(TwoHands):
+        conf = np.full(21, 0.2)
+        look_conf = np.full(21, 0.9)
+        looks: list = []
+
+        def keypoint_confidence(self, image, hand):
+            return Unsure.conf
+
+        def mirrored_look(self, image, hand):
+            Unsure.looks.append(hand.side)
+            moved = hand_at(160, 60, "right")  # the same hand, its skeleton 10 px lower
+            return (moved, Unsure.look_conf) if Unsure.look_conf is not None else None
+
+    class Segmenter:
+        def segment(self, image, hand, prompts=None):
+            return holds(image, hand, prompts)
+
+    monkeypatch.setitem(base._REGISTRY["segmenter"], "holds", Segmenter)
+    monkeypatch.setitem(base._REGISTRY["hand"], "unsure", Unsure)
+    cfg = replace(config, perception=replace(config.perception, hand="unsure", segmenter="holds"))
+    img = np.random.default_rng(0).integers(0, 255, (100, 200, 3), dtype=np.uint8)
+    inp, report = perceive(img, cfg)
+    assert Unsure.looks == ["right"]  # only the chosen hand is looked at again
+    assert seen == [pytest.approx(50.0, abs=1)] * 2  # both hands, segmented once each
+    np.testing.assert_allclose(inp.meta["keypoints2d"], hand_at(160, 60, "right").keypoints2d)
+    np.testing.assert_allclose(inp.meta["keypoints2d_confidence"], 0.9)
+    assert report.confidence["keypoints"].score == pytest.approx(0.9)
+    assert "second look (mirrored photo)" in report.timings
+    assert any(n.startswith("hand keypoints from the mirrored photo") and "0.20 in the photo"
+               in n and "0.90 mirrored" in n for n in report.notes)  # fmt: skip
+    # a look no steadier than the photo's skeleton, or none at all: the photo's is kept
+    for look in (np.full(21, 0.2), None):
+        Unsure.look_conf, Unsure.looks, seen[:] = look, [], []
+        inp, report = perceive(img, cfg)
+        assert Unsure.looks == ["right"] and len(seen) == 2
+        np.testing.assert_allclose(inp.meta["keypoints2d"], hand_at(160, 50, "right").keypoints2d)
+        assert report.confidence["keypoints"].score == pytest.approx(0.2)
+    # keypoints the detector is sure of: no second look
+    Unsure.conf, Unsure.look_conf, Unsure.looks = np.full(21, 0.6), np.full(21, 0.9), []
+    perceive(img, cfg)
+    assert Unsure.looks == []
+
+
 def test_grounded_sam_gets_both_model_folders(monkeypatch, tmp_path):
     from easyhoi.cli import _config_from_args, build_parser
     from easyhoi.config import PerceptionConfig

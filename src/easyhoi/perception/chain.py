@@ -185,6 +185,25 @@ def perceive(
             seg = Segmentation(hm, om, bool(om.any()), seg.candidates, seg.meta, conf)
         report.confidence.update(seg.confidence)
     chosen = hands[idx]
+    # how sure the detector is of each keypoint, where it can say (the optimizer's keypoint
+    # terms weigh the joints by it); when it is unsure, a second look at the mirrored photo.
+    # A steadier skeleton from that look replaces the keypoints the hand is fitted to and the
+    # optimizer follows; the masks stay those of the first look (a skeleton whose fingers run
+    # behind the held object seeds the hand mask over the object)
+    kp_confidence = None
+    if pv.hand is None and hasattr(detector, "keypoint_confidence"):
+        kp_confidence = timed("keypoint confidence", detector.keypoint_confidence, image, chosen)
+        look = second_look(detector, image, chosen, kp_confidence, timed)
+        if look is not None:
+            before = keypoints_confidence(kp_confidence).score
+            chosen, kp_confidence = look
+            hands[idx] = chosen
+            report.notes.append(
+                "hand keypoints from the mirrored photo: the detector is surer of them there "
+                f"(median keypoint confidence {before:.2f} in the photo, "
+                f"{keypoints_confidence(kp_confidence).score:.2f} mirrored)"
+            )
+        report.confidence["keypoints"] = keypoints_confidence(kp_confidence)
     report.hand_index = idx
     report.side, report.has_object = chosen.side, True
 
@@ -196,12 +215,6 @@ def perceive(
         report.notes.append("hand provided (imported), not fitted")
     else:
         chosen = timed("hand fit", fit_detection, chosen, model, W, H)
-    # how sure the detector is of each keypoint, where it can say (the optimizer's keypoint
-    # terms weigh the joints by it)
-    kp_confidence = None
-    if pv.hand is None and hasattr(detector, "keypoint_confidence"):
-        kp_confidence = timed("keypoint confidence", detector.keypoint_confidence, image, chosen)
-        report.confidence["keypoints"] = keypoints_confidence(kp_confidence)
 
     inpainter = _backend(pc, "inpainter", pc.inpainter, seed, run.device)
     inpainted = timed("inpainting", inpainter.inpaint, image, seg.hand_mask)
@@ -330,6 +343,27 @@ def segment_hands(
     if choice is None:
         choice = "first holding an object" if len(results) == 1 else "most confident object"
     return i, s, notes, choice
+
+
+def second_look(detector, image: np.ndarray, hand: HandDetection, confidence, timed=None):
+    """A steadier skeleton of ``hand`` from the detector's look at the mirrored photo, when the
+    detector is unsure of ``hand``'s keypoints (their ``confidence`` is low) and has such a
+    look (``detector.mirrored_look``): (detection, its keypoint confidences), or None when the
+    look is not steadier (a higher median confidence) or not taken.
+
+    Why: the landmark model is not mirror-symmetric, so the mirrored photo is a second look at
+    the same hand; of two skeletons of one hand, the one that stays put when the crop moves is
+    the one located from evidence (the confidence's own reason, ``mediapipe_hand``).
+    """
+    if not keypoints_confidence(confidence).low or not hasattr(detector, "mirrored_look"):
+        return None
+    run = timed or (lambda _name, fn, *a, **kw: fn(*a, **kw))
+    look = run("second look (mirrored photo)", detector.mirrored_look, image, hand)
+    if look is None or look[1] is None:
+        return None
+    if confidence is not None and np.median(look[1]) <= np.median(confidence):
+        return None
+    return look
 
 
 def _prompted(segmenter, name: str, prompts: Prompts | None):
