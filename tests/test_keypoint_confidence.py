@@ -135,14 +135,14 @@ def test_mirrored_look_maps_the_mirrored_hand_back(monkeypatch):
     mirrored[:, 0] = W - mirrored[:, 0]
     near = HandDetection(mirrored + 2.0, k3, "left", 0.8, meta={"pass": "palm"})
     far = HandDetection(mirrored + 60.0, None, "right", 0.9, meta={"pass": "palm"})
-    hands = mph.MediaPipeHands()
+    hands = mph.MediaPipeHands(roi_search=False)
     got = []
 
-    def detect(img):
+    def palm(img):
         got.append(img.copy())
         return [far, near]
 
-    monkeypatch.setattr(hands, "detect", detect)
+    monkeypatch.setattr(hands, "_palm_pass", palm)
     monkeypatch.setattr(hands, "keypoint_confidence", lambda img, d: np.full(21, 0.7))
     image[:, :50] = 255  # the detector is shown the photo mirrored
     back, conf = hands.mirrored_look(image, det)
@@ -153,8 +153,43 @@ def test_mirrored_look_maps_the_mirrored_hand_back(monkeypatch):
     np.testing.assert_allclose(back.keypoints3d, k3 * [-1, 1, 1])
     assert back.side == "right" and back.meta["pass"] == "mirrored palm"
     np.testing.assert_allclose(conf, 0.7)
-    monkeypatch.setattr(hands, "detect", lambda img: [far])
+    monkeypatch.setattr(hands, "_palm_pass", lambda img: [far])
     assert hands.mirrored_look(image, det) is None
+
+
+def test_a_hand_the_palm_pass_misses_is_found_in_the_mirrored_photo(monkeypatch):
+    """Fewer hands than ``max_hands``: the palm pipeline runs on the mirrored photo too, and
+    what it finds that the first run did not is added, mapped back."""
+    W = 200
+    image = np.zeros((160, W, 3), np.uint8)
+    image[:, :50] = 255
+    a = HandDetection(_hand(), None, "right", 0.9, meta={"pass": "palm"})
+    b_kp = _hand() + (60.0, 0.0)  # a second hand, 60 px to the right
+    mirror = lambda k: np.column_stack([W - k[:, 0], k[:, 1]])  # noqa: E731
+    a_again = HandDetection(mirror(a.keypoints2d) + 1.0, None, "left", 0.95, meta={"pass": "palm"})
+    b_m = HandDetection(mirror(b_kp), None, "right", 0.7, meta={"pass": "palm"})
+    calls = []
+
+    def palm(img):
+        calls.append(bool((img[:, -50:] == 255).all()))  # True: the mirrored photo
+        return [a] if not calls[-1] else [a_again, b_m]
+
+    hands = mph.MediaPipeHands(roi_search=False)
+    monkeypatch.setattr(hands, "_palm_pass", palm)
+    out = hands.detect(image)
+    assert calls == [False, True]
+    assert len(out) == 2 and out[0] is a  # the first run's hand, then the new one
+    np.testing.assert_allclose(out[1].keypoints2d, b_kp)
+    assert out[1].side == "left" and out[1].meta["pass"] == "mirrored palm"
+    # two hands found already (max_hands): no mirrored run
+    calls.clear()
+    monkeypatch.setattr(hands, "_palm_pass", lambda img: calls.append(1) or [a, b_m])
+    assert len(hands.detect(image)) == 2 and calls == [1]
+    # switched off: the first run alone
+    calls.clear()
+    off = mph.MediaPipeHands(roi_search=False, mirror_pass=False)
+    monkeypatch.setattr(off, "_palm_pass", palm)
+    assert off.detect(image) == [a] and calls == [False]
 
 
 def test_mirrored_look_steadies_a_swapped_skeleton(shared_data):
