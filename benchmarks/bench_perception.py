@@ -73,6 +73,7 @@ def reference(path: Path) -> dict:
     return {
         "image": ref.image,
         "hand": [pr.rasterize(h.polygons, ref.height, ref.width) for h in ref.hands],
+        "holds": [bool(h.holds_object) for h in ref.hands],
         "object": obj if obj.any() else None,
         "visibly_held": any(o.held_by and o.visibly_held for o in ref.objects),
         "point": pr.object_point(ref),
@@ -104,6 +105,27 @@ def iou(a: np.ndarray | None, b: np.ndarray | None) -> float:
     if a is None or b is None:
         return 0.0
     return float((a & b).sum()) / max(1.0, float((a | b).sum()))
+
+
+def holding_hands_found(hands, ref) -> tuple[int, int]:
+    """(reference hands holding the object, how many of them a detection lands on): most of a
+    detection's keypoints inside the reference hand's outline grown by 7 px."""
+    k = np.ones((15, 15), np.uint8)
+    total = found = 0
+    for mask, holds in zip(ref["hand"], ref["holds"], strict=True):
+        if not holds:
+            continue
+        total += 1
+        grown = cv2.dilate(mask.astype(np.uint8), k) > 0
+        h, w = grown.shape
+        for d in hands:
+            kp = np.asarray(d.keypoints2d, dtype=np.float64).reshape(-1, 2)
+            xs = np.clip(kp[:, 0].astype(int), 0, w - 1)
+            ys = np.clip(kp[:, 1].astype(int), 0, h - 1)
+            if grown[ys, xs].mean() > 0.5:
+                found += 1
+                break
+    return total, found
 
 
 def best_hypothesis_iou(rgb, hands, segmenter, ref_obj) -> float:
@@ -141,8 +163,11 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
     present = ref["object"] is not None
     out_obj = seg.object_mask if seg is not None else None
     conf = seg.confidence.get("object") if seg is not None else None
+    n_holding, n_found = holding_hands_found(hands, ref)
     row = {
         "hand": bool(hands),
+        "holding_hands": n_holding,
+        "holding_hands_found": n_found,
         # against the reference hand it matches best (the photo may show several)
         "hand_iou": max((iou(seg.hand_mask, h) for h in ref["hand"]), default=0.0)
         if seg is not None
@@ -242,10 +267,14 @@ def summary(rows: list[dict]) -> dict:
     wrong = [r for r in held if r["wrong"]]
     right = [r for r in held if r["output"] and not r["wrong"]]
     pts = [r for r in held if "iou_point" in r]
+    found = sum(r["holding_hands_found"] for r in rows)
     return {
         "photos": len(rows),
         "with_object": len(held),
         "hand_found": float(np.mean([r["hand"] for r in rows])) if rows else 0.0,
+        # hands that hold the object (reference) with no detection on them
+        "holding_hands_missed": f"{sum(r['holding_hands'] for r in rows) - found} of "
+        f"{sum(r['holding_hands'] for r in rows)}",
         "mean_hand_iou": float(np.mean([r["hand_iou"] for r in rows])) if rows else 0.0,
         "hand_iou_ge_0.7": float(np.mean([r["hand_iou"] >= 0.7 for r in rows])) if rows else 0.0,
         "iou_ge_0.5": float(np.mean([r["iou"] >= 0.5 for r in held])) if held else 0.0,
