@@ -51,7 +51,7 @@ the same hand. A skeleton the model only guesses in the photo (a low median conf
 one it locates firmly in the mirrored photo; the chain fits the hand to whichever of the two
 is steadier under the same crop changes (``perception.chain.second_look``; the masks stay those
 of the first look). On the development photos the look runs for
-3 of 52 hands: for the swapped skeleton above the mirrored photo gives the thumb on the right
+3 of 54 hands: for the swapped skeleton above the mirrored photo gives the thumb on the right
 side with a median confidence of 0.90 (mean error to the reference keypoints 58 px instead of
 119 px); for the other two it finds no steadier skeleton and nothing changes.
 """
