@@ -197,7 +197,6 @@ def perceive(
         if look is not None:
             before = keypoints_confidence(kp_confidence).score
             chosen, kp_confidence = look
-            hands[idx] = chosen
             report.notes.append(
                 "hand keypoints from the mirrored photo: the detector is surer of them there "
                 f"(median keypoint confidence {before:.2f} in the photo, "

@@ -5,12 +5,13 @@ Two passes:
 1. MediaPipe's own pipeline (palm detector -> landmark model), ``static_image_mode=True``. When
    it (or pass 2, when it runs) finds fewer than ``max_hands`` hands, the same pipeline runs on
    the left-right mirrored photo and the hands it finds that are not already found (keypoint
-   centres more than half a hand apart) are added, mapped back (:func:`unmirror`). Why: the palm detector is a network,
-   not a mirror-symmetric one, and a hand it misses at the edge of its confidence (seen side-on,
-   gripping a bottle, partly hidden) is often one it finds mirrored. On the development photos
-   the first run misses 6 of the 50 hands that hold the object; the mirrored run finds 2 of
-   them (the only holding hand of `ihoi-demo_05`, the knife hand of `ihoi-demo_09`) and no hand
-   that is not there. One more palm-pipeline run per photo (about 0.05 s).
+   centres more than half a hand apart) are added, mapped back (:func:`unmirror`). Why: the
+   palm detector is a network, not a mirror-symmetric one, and a hand it misses at the edge of
+   its confidence (seen side-on, gripping a bottle, partly hidden) is often one it finds
+   mirrored. On the development photos the first run misses 6 of the 50 hands that hold the
+   object; the mirrored run finds 2 of them (the only holding hand of `ihoi-demo_05`, the knife
+   hand of `ihoi-demo_09`) and no hand that is not there. One more palm-pipeline run per photo
+   (about 0.04 s CPU).
 2. When the palm detector finds nothing (gloves, grey-scale photos, hands cut by the object), an
    ROI search: the landmark model alone is run on square windows over a grid of positions, three
    sizes and four rotations (the landmark model reports a hand only when its own presence score
@@ -50,10 +51,10 @@ are not mirror-symmetric networks, so the mirrored photo is a second, partly ind
 the same hand. A skeleton the model only guesses in the photo (a low median confidence) may be
 one it locates firmly in the mirrored photo; the chain fits the hand to whichever of the two
 is steadier under the same crop changes (``perception.chain.second_look``; the masks stay those
-of the first look). On the development photos the look runs for
-3 of 54 hands: for the swapped skeleton above the mirrored photo gives the thumb on the right
-side with a median confidence of 0.90 (mean error to the reference keypoints 58 px instead of
-119 px); for the other two it finds no steadier skeleton and nothing changes.
+of the first look). On the development photos the look runs for 3 of 54 hands: for the swapped
+skeleton above the mirrored photo gives the thumb on the right side with a median confidence of
+0.90 (mean error to the reference keypoints 58 px instead of 119 px); for the other two it
+finds no steadier skeleton and nothing changes.
 """
 
 from __future__ import annotations
