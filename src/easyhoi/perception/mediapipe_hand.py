@@ -267,9 +267,9 @@ class MediaPipeHands:
         min_detection_confidence (float): Palm-detector threshold of pass 1.
         model_complexity (int): 0 (lite) or 1 (full) landmark model.
         roi_search (bool): Run pass 2 (ROI search) when pass 1 finds no hand.
-        mirror_pass (bool): When pass 1 finds fewer than ``max_hands`` hands, run the palm
-            pipeline again on the left-right mirrored photo and add the hands it finds that
-            pass 1 did not (see the module notes).
+        mirror_pass (bool): When passes 1 and 2 find fewer than ``max_hands`` hands, run the
+            palm pipeline again on the left-right mirrored photo and add the hands it finds
+            that they did not (see the module notes).
         mirrored (bool): The input is a mirrored selfie image (keep MediaPipe's handedness label).
     """
 
