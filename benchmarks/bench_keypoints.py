@@ -10,7 +10,8 @@ and two sets of 2D keypoints are compared with the reference:
 Per image: mean pixel error and PCK@0.05 / PCK@0.1 (a keypoint within 5 % / 10 % of the larger
 side of the reference keypoints' box), the mean pixel error of every stage snapshot (initial,
 camera, contact, refine: where the hand gains or loses in the photo), and the ``hand_change``
-summary of the result (how far the optimizer moved the hand from the estimator). The optimizer
+summary of the result (how far the optimizer moved the hand from the estimator) and the
+result's contact (``contact_distance_cm``, ``in_contact`` of its plausibility). The optimizer
 must not make the hand worse in the photo than the detector's keypoints: ``final <= detector``
 per image is the check.
 
@@ -26,6 +27,7 @@ Usage::
     python benchmarks/bench_keypoints.py                 # every data set found
     python benchmarks/bench_keypoints.py --limit 2       # first 2 photos of each
     python benchmarks/bench_keypoints.py --coco FILE.json --images DIR
+    python benchmarks/bench_keypoints.py --set optim.contact.keypoint_weight=0   # a variant
 
 Results: a table on stdout and ``benchmarks/results/bench_keypoints.json``.
 """
@@ -119,9 +121,13 @@ def _reprojected(hand_model: str, params, camera, metric_scale: float) -> np.nda
 
 
 def run_photo(
-    photo: Path, ref: np.ndarray, visible: np.ndarray | None = None, hand_point: bool = False
+    photo: Path,
+    ref: np.ndarray,
+    visible: np.ndarray | None = None,
+    hand_point: bool = False,
+    overrides: dict | None = None,
 ) -> dict:
-    from easyhoi.config import get_preset
+    from easyhoi.config import get_preset, with_overrides
     from easyhoi.errors import EasyHOIError
     from easyhoi.perception.prompts import Prompts
     from easyhoi.pipeline import reconstruct_photo
@@ -132,7 +138,8 @@ def run_photo(
         prompts = Prompts(hand_point=(float(cx), float(cy)))
     t0 = time.perf_counter()
     try:
-        rec = reconstruct_photo(photo, None, get_preset("fast"), seed=0, prompts=prompts)
+        cfg = with_overrides(get_preset("fast"), overrides or {})
+        rec = reconstruct_photo(photo, None, cfg, seed=0, prompts=prompts)
     except EasyHOIError as exc:
         return {"photo": photo.name, "error": f"{type(exc).__name__}: {exc}"}
     det = rec.inp.meta.get("keypoints2d")
@@ -147,6 +154,9 @@ def run_photo(
     row["hand_change"] = {
         k: v for k, v in rec.result.hand_change.items() if k.startswith(("mean", "max"))
     }
+    plaus = rec.result.plausibility
+    row["contact_cm"] = plaus.get("contact_distance_cm")
+    row["in_contact"] = plaus.get("in_contact")
     return row
 
 
@@ -156,7 +166,17 @@ def main(argv=None) -> int:
     ap.add_argument("--images", type=Path, help="folder of its photos (default: beside it)")
     ap.add_argument("--limit", type=int, default=0, help="first N photos of each set (0: all)")
     ap.add_argument("--out", type=Path, default=RESULTS / "bench_keypoints.json")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="configuration override of the fast preset (repeatable)",
+    )
     args = ap.parse_args(argv)
+    from easyhoi.config import get_preset, parse_overrides
+
+    overrides = parse_overrides(args.set, get_preset("fast"))
     import torch
 
     torch.set_num_threads(1)
@@ -168,7 +188,7 @@ def main(argv=None) -> int:
         seen.add(coco.resolve())
         items = load_coco(coco, images)
         for photo, ref in items[: args.limit or None]:
-            row = run_photo(photo, ref)
+            row = run_photo(photo, ref, overrides=overrides)
             row["set"] = coco.name
             rows.append(row)
             print(_line(row), flush=True)
@@ -176,7 +196,7 @@ def main(argv=None) -> int:
         shared = next((d for d in SHARED if d.is_dir()), None)
         own = load_own_refs(OWN_REFS, shared) if shared else []
         for photo, ref, visible in own[: args.limit or None]:
-            row = run_photo(photo, ref, visible, hand_point=True)
+            row = run_photo(photo, ref, visible, hand_point=True, overrides=overrides)
             row["set"] = "keypoint_refs"
             rows.append(row)
             print(_line(row), flush=True)
@@ -206,7 +226,8 @@ def _line(row: dict) -> str:
     return (f"{row['photo']}: {det}; final {f['mean_px']:.2f} px PCK@0.05 {f['pck05']:.2f}; "
             f"stages {stages} px; "
             f"moved {row['hand_change'].get('mean_px', float('nan')):.2f} px, "
-            f"{row['hand_change'].get('mean_cm', float('nan')):.2f} cm")  # fmt: skip
+            f"{row['hand_change'].get('mean_cm', float('nan')):.2f} cm; "
+            f"contact {row.get('contact_cm', float('nan')):.2f} cm")  # fmt: skip
 
 
 if __name__ == "__main__":

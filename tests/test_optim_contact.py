@@ -296,3 +296,50 @@ def test_contact_band_term_sees_a_hand_off_the_object(hand):
         assert got == pytest.approx(naive, rel=1e-5)
         scores.append(got)
     assert scores[0] < scores[1] < scores[2] < scores[3], scores
+
+
+def test_contact_keypoints_project_like_the_returned_hand(hand):
+    """The stage's keypoints are those of the hand it returns, through the object camera, and
+    the metric scale (a move along the camera rays) does not change them."""
+    sc, scene, cfg, cam = _setup("cylinder", hand, **NOISE)
+    p, m, _ = initial_hand(scene, sc.inp, cam, SIZE)
+    st = ContactState(scene, p, cam, m)
+    with torch.no_grad():
+        st.r.copy_(torch.tensor([0.1, -0.2, 0.05]))
+        st.delta.copy_(torch.tensor([0.03, -0.02, 0.01]))
+    H, W = scene.image_size
+    uv = st.keypoints_uv(W, H).detach()
+    for scale in (st.m, 1.3 * st.m):
+        st.m = scale
+        k = hand(st.hand_params()).keypoints[0] / st.m
+        ref, _ = cam.resized(W, H).project(k)
+        np.testing.assert_allclose(uv.numpy(), ref.detach().numpy(), atol=1e-3)
+
+
+def test_keypoint_term_holds_the_hand_where_the_detector_saw_it(hand):
+    """A hand mask shifted off the hand (a mask that is wrong, as on real photos) drags the
+    rigid mask fit with it; the detector's keypoints hold the hand in place. (The best state
+    is judged by the closest vertex's contact, not the contact band: a hand moved sideways off
+    this toy object's one touching point would lose to the start by the band's score.)"""
+    from easyhoi.optim.state import PhotoKeypoints
+
+    sc, scene, cfg, cam = _setup("cylinder", hand, rot_noise=0, trans_noise=0, depth_noise=0,
+                                 pose_noise=0)  # fmt: skip
+    p, m, _ = initial_hand(scene, sc.inp, cam, SIZE)
+    H, W = scene.image_size
+    truth = ContactState(scene, p, cam, m).keypoints_uv(W, H).detach()
+    scene.keypoints = PhotoKeypoints(truth, torch.ones(21), float(np.ptp(truth.numpy(), 0).max()))
+    shift = 6  # pixels to the right
+    scene.masks = dict(scene.masks, hand=torch.roll(scene.masks["hand"], shift, dims=1))
+    scene._mask_cache.clear()
+    moved = {}
+    for w in (0.0, 8.0):
+        c = replace(cfg.contact, keypoint_weight=w, keypoint_drift_weight=w / 2, max_iters=150,
+                    register_at=(), patience=0, stop_loss=0.0, score_band=False)  # fmt: skip
+        st = ContactState(scene, p, cam, m)
+        res = fit_contact(scene, st, c, cfg)
+        du = (st.keypoints_uv(W, H).detach() - truth)[:, 0].mean()
+        moved[w] = float(du)
+        assert ("keypoints" in res.losses[-1]) == (w > 0)
+    assert moved[0.0] > 0.4 * shift, moved  # the mask alone follows the shifted mask
+    assert abs(moved[8.0]) < 0.25 * moved[0.0], moved

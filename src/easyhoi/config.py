@@ -219,10 +219,22 @@ class ContactStageConfig:
     """The best-state score measures touching with the depth scan's contact-band term (the
     contact zones on the surface, scan_band) instead of the closest vertex's distance to it;
     used only when scan_band > 0."""
+    keypoint_weight: float = 0.0
+    """Weight of the robust 2D keypoint term (optim.hand_terms.keypoint_loss) in the mask fit:
+    the rigid hand's reprojected keypoints against the detector's (HOIInput.meta["keypoints2d"]),
+    so that a hand mask that is wrong in places cannot drag the hand off where the detector
+    saw it; 0 = off (the paper: the mask alone)."""
+    keypoint_drift_weight: float = 0.0
+    """Weight of the whole-hand drift term (optim.hand_terms.keypoint_drift_loss) in the mask
+    fit; used only with keypoint_weight > 0."""
+    keypoint_sigma: float = 0.1
+    """Geman-McClure scale of the stage's keypoint terms, as a fraction of the hand's size in
+    the photo."""
 
     def __post_init__(self):
         _finite(self)
-        _positive(self, "lr", "peel_layers")
+        _positive(self, "lr", "peel_layers", "keypoint_sigma")
+        _non_negative(self, "keypoint_weight", "keypoint_drift_weight")
         _non_negative(self, "max_iters", "stop_loss", "patience", "min_delta", "icp_iters")
         _non_negative(self, "icp_tolerance", "rotation_prior_weight", "scan_tie_margin")
         _non_negative(self, "scan_band", "rescan_tie_margin")
@@ -540,6 +552,12 @@ _FAST = EasyHOIConfig(
             # hand whose deepest vertex just touches is a hand backed off the object, which
             # then holds nothing
             score_band=True,
+            # the detector's keypoints hold the rigid hand where the photo shows it, with the
+            # same balance against the mask as in the refinement (8 : 1 and 4 : 1): a hand mask
+            # that takes in a sleeve or loses a finger to the object otherwise drags the hand
+            # across the photo (docs/benchmark.md, "Keypoints in the mask fit")
+            keypoint_weight=8.0,
+            keypoint_drift_weight=4.0,
         ),
         refine=RefineStageConfig(
             max_iters=100,

@@ -22,7 +22,12 @@ Loop (Adam, coarse-to-fine phases sharing ``max_iters``):
 
 (a) mask-constrained optimization of ``r`` and ``delta``: soft IoU between the VISIBLE rendered
     hand (occluded by the object) and M_h, plus ``rotation_prior_weight * ||r||^2`` (keeps the
-    estimator's rotation relative to the camera; 0 in the paper preset);
+    estimator's rotation relative to the camera; 0 in the paper preset), plus, with
+    ``keypoint_weight`` > 0, the robust keypoint and drift terms of stage 3
+    (:mod:`easyhoi.optim.hand_terms`) on the rigid hand's reprojected keypoints against the
+    detector's: a hand mask that is wrong in places (a sleeve, a shadow, a finger lost to the
+    object) pulls the rigid hand off where the detector saw it, and only where the keypoints
+    leave it free does the mask move it (0 in the paper preset: the mask alone);
 (b) at the iterations ``register_at``: first the depth along the rays is re-chosen by
     :func:`scan_scale` (photo occlusions + touching), then contact registration
     (:func:`register_contacts`):
@@ -40,8 +45,8 @@ Loop (Adam, coarse-to-fine phases sharing ``max_iters``):
 Best state: the states from the first registration on compete (before it the depth is not
 yet aligned), including the state right after each depth scan (before its ICP move, which can
 be biased where the two surfaces differ in shape, e.g. a flat palm behind a cylinder); the
-score is ``IoU loss + rotation prior + touching term``: by default the contact distance
-``|min_v d(v)|`` over the hand vertices in normalised object units (0 when the hand touches
+score is ``IoU loss + rotation prior + keypoint terms + touching term``: by default the contact
+distance ``|min_v d(v)|`` over the hand vertices in normalised object units (0 when the hand touches
 the surface without penetrating it); with ``score_band`` the depth scan's contact-band term
 (:func:`scan_scale`), so that the stage and its scans judge depth by the same criterion. The
 closest-vertex distance favours the rigid hand whose single deepest vertex grazes the surface:
@@ -64,6 +69,7 @@ from easyhoi.config import ContactStageConfig, OptimConfig
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import HOIInput, StageResult
 from easyhoi.optim.adam import Adam
+from easyhoi.optim.hand_terms import keypoint_drift_loss, keypoint_loss
 from easyhoi.optim.loop import StageLoop, early_stop, run_phases
 from easyhoi.optim.losses import soft_iou_loss
 from easyhoi.optim.placement import camera_hand_to_object, hand_in_camera, move_hand, rest_wrist
@@ -99,7 +105,9 @@ class ContactState:
         self.camera = camera.detach().to(dt)
         self.params_cam = params_cam.detach().to(dtype=dt)
         with torch.no_grad():
-            self.v0 = scene.hand_model(self.params_cam).vertices[0]
+            out = scene.hand_model(self.params_cam)
+            self.v0 = out.vertices[0]
+            self.k0 = out.keypoints[0]
         self.c0 = self.v0.mean(0)
         self.L = float((self.v0.max(0).values - self.v0.min(0).values).max())
         self.r = torch.zeros(3, dtype=dt, device=scene.device, requires_grad=True)
@@ -110,6 +118,13 @@ class ContactState:
         """(V, 3) hand vertices in the object camera's frame, metres."""
         Rr = axis_angle_to_matrix(self.r)
         return (self.v0 - self.c0) @ Rr.T + self.c0 + self.L * self.delta
+
+    def keypoints_uv(self, width: int, height: int) -> torch.Tensor:
+        """(21, 2) the hand's keypoints projected into a ``width`` x ``height`` photo. The metric
+        scale moves the hand along the camera rays, so it does not change them."""
+        Rr = axis_angle_to_matrix(self.r)
+        k = (self.k0 - self.c0) @ Rr.T + self.c0 + self.L * self.delta
+        return _origin_camera(self.camera).resized(width, height).project(k)[0]
 
     def verts_obj(self) -> torch.Tensor:
         """(V, 3) hand vertices in the object frame, object units."""
@@ -300,6 +315,21 @@ def _rot_prior(state: ContactState, cfg: ContactStageConfig) -> torch.Tensor:
     return cfg.rotation_prior_weight * (state.r**2).sum()
 
 
+def _keypoint_terms(scene: Scene, state: ContactState, cfg: ContactStageConfig) -> torch.Tensor:
+    """The weighted keypoint terms of the mask fit: the detector's keypoints hold the hand where
+    the photo shows it (the robust term per joint, the drift term for the hand as a whole)."""
+    kp = scene.keypoints
+    H, W = scene.image_size
+    uv = state.keypoints_uv(W, H)
+    loss = cfg.keypoint_weight * keypoint_loss(uv, kp.points, kp.size, cfg.keypoint_sigma,
+                                               kp.confidence)  # fmt: skip
+    if cfg.keypoint_drift_weight > 0:
+        loss = loss + cfg.keypoint_drift_weight * keypoint_drift_loss(
+            uv, kp.points, kp.size, cfg.keypoint_sigma, kp.confidence
+        )
+    return loss
+
+
 def fit_contact(
     scene: Scene,
     state: ContactState,
@@ -342,6 +372,8 @@ def fit_contact(
             v = state.verts_obj()
             _, vis, _ = scene.hand_silhouettes(v, cam)
             scan = float(soft_iou_loss(vis, masks["hand"])) + float(_rot_prior(state, cfg))
+            if cfg.keypoint_weight > 0 and scene.keypoints is not None:
+                scan += float(_keypoint_terms(scene, state, cfg))
             loop.offer(scan + _touch(scene, v, sdf_res, score_band), state.state(), it)
         D, anchor, info = register_contacts(scene, v, cam, masks, cfg)
         info["scan_scale_factor"] = state.m / m_before
@@ -368,6 +400,10 @@ def fit_contact(
             prior = _rot_prior(state, cfg)
             loss = loss + prior
             terms["rot_prior"] = float(prior.detach())
+        if cfg.keypoint_weight > 0 and scene.keypoints is not None:
+            kp_loss = _keypoint_terms(scene, state, cfg)
+            loss = loss + kp_loss
+            terms["keypoints"] = float(kp_loss.detach())
         score = float(loss.detach()) + cdist
         terms["total"] = score
         loop.record(it, terms)
