@@ -257,7 +257,8 @@ def test_score_band_keeps_a_held_grasp_on_the_object(held_grasp):
 
     s, inp, scene, cam, m_gt = held_grasp
     fast = get_preset("fast").optim
-    short = dict(max_iters=40, register_at=(10,), patience=10)
+    # the mask fit alone (no keypoint terms), whose drift the two scores judge differently
+    short = dict(max_iters=40, register_at=(10,), patience=10, keypoint_weight=0.0)
     ends = {}
     for score_band in (True, False):
         cfg = replace(fast, contact=replace(fast.contact, score_band=score_band, **short))

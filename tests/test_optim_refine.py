@@ -219,3 +219,29 @@ def test_rigid_first_moves_only_the_global_pose_in_the_first_phase(box_scene, ha
     rc2 = replace(rc, resolution_schedule=(0.5, 1.0), max_iters=12)
     p2, _ = fit_refine(scene, p0, m, cam, rc2, cfg)
     assert not torch.equal(p2.pose, p0.pose.to(p2.pose.dtype))  # the second phase bends them
+
+
+def test_push_out_is_kept_only_when_the_stage_loss_falls(box_scene, hand):
+    """The push-out judges its move by the summed penetration depth; the stage keeps the pushed
+    hand only when its whole loss is lower there. With penetration counting, a hand 1 cm in
+    is pushed out; with penetration weighing nothing, the same move only costs (contact, mask)
+    and the hand stays where it was."""
+    from easyhoi.optim.refine import _accept_push, push_out
+
+    sc, scene, cfg = box_scene
+    p0, _ = _pushed(sc, scene, hand, 0.01)
+    m, cam = sc.gt_metric_scale, sc.gt_camera.to(torch.float32)
+    kept = {}
+    for w in (cfg.refine.penetration_weight, 0.0):
+        rc = replace(cfg.refine, penetration_weight=w)
+        push = push_out(scene, p0, m, rc, cam, as_scale=True)
+        assert push[1]["steps"] >= 1  # the push-out itself moves the hand either way
+        tr, m1 = _accept_push(scene, p0, m, p0.pose, cam, rc, cfg, push)
+        note = push[1]
+        kept[w] = note["kept"]
+        assert note["kept"] == (note["loss_after"] < note["loss_before"])
+        if note["kept"]:
+            assert m1 != m and not torch.equal(tr, p0.transl)
+        else:
+            assert m1 == m and torch.equal(tr, p0.transl)
+    assert kept == {cfg.refine.penetration_weight: True, 0.0: False}

@@ -224,6 +224,42 @@ def _signed(p: np.ndarray, v: np.ndarray, f: np.ndarray, normals) -> np.ndarray:
     return np.where(s < 0, -dist, dist)
 
 
+def _winding_signed(p: np.ndarray, v: np.ndarray, f: np.ndarray, normals) -> np.ndarray:
+    """The exact distance of :func:`_signed`, signed by the generalised winding number (inside
+    where the surface winds round the point, as a ray-parity test says) instead of the closest
+    feature's pseudo-normal."""
+    import point_cloud_utils as pcu
+
+    if len(p) == 0:
+        return np.zeros(0)
+    d = np.abs(_signed(p, v, f, normals))
+    w = np.asarray(pcu.signed_distance_to_mesh(np.ascontiguousarray(p), v, f)[0])
+    return np.where(w < 0, -d, d)
+
+
+def _sign_function(v: np.ndarray, f: np.ndarray, normals, probe: np.ndarray):
+    """The signed distance function of the grid build: :func:`_signed` (pseudo-normals) when its
+    signs agree with the winding number's at every ``probe`` point, else :func:`_winding_signed`.
+
+    The pseudo-normal sign is exact for a closed surface that does not cross itself. A
+    watertight surface that folds through itself (a deformed thin wall, a self-intersecting
+    mesh from an image-to-3D model) has regions the local orientation calls inside that no ray
+    test does: there every point would read as deep inside the object, and the penetration
+    terms would push the hand out of volume that is not there. The probe (the banded build's
+    coarse nodes, a few thousand points) finds such folds at the cost of one winding query
+    each; a clean mesh keeps the pseudo-normal signs, so its grid is unchanged."""
+
+    def pseudo(p):
+        return _signed(p, v, f, normals)
+
+    def winding(p):
+        return _winding_signed(p, v, f, normals)
+
+    ps = pseudo(probe)
+    ws = winding(probe)
+    return pseudo if bool(np.all((ps < 0) == (ws < 0))) else winding
+
+
 def build_sdf_grid(
     mesh: trimesh.Trimesh,
     resolution: int = 64,
@@ -275,12 +311,13 @@ def build_sdf_grid(
     v = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
     f = np.ascontiguousarray(mesh.faces, dtype=np.int64)
     normals = _pseudo_normals(v, f)
+    signed = _sign_function(v, f, normals, _coarse_nodes(axes).reshape(-1, 3))
     if exact_band is None or resolution <= 2 * _COARSE_STEP:
         nodes = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        values = _signed(nodes, v, f, normals).reshape(resolution, resolution, resolution)
+        values = signed(nodes).reshape(resolution, resolution, resolution)
     else:
         voxel = 2.0 * half / (resolution - 1)
-        values = _banded_values(axes, voxel, float(exact_band) * voxel, v, f, normals)[0]
+        values = _banded_values(axes, voxel, float(exact_band) * voxel, signed)[0]
     return SDFGrid(
         values=torch.as_tensor(values, dtype=dtype, device="cpu"),  # built here; SDFGrid.to moves
         bounds_min=torch.as_tensor(bmin, dtype=dtype, device="cpu"),
@@ -289,8 +326,19 @@ def build_sdf_grid(
     )
 
 
+def _coarse_index(res: int) -> np.ndarray:
+    """Indices of the banded build's coarse nodes along an axis of ``res`` nodes."""
+    return np.unique(np.r_[np.arange(0, res, _COARSE_STEP), res - 1])
+
+
+def _coarse_nodes(axes: list[np.ndarray]) -> np.ndarray:
+    """(C, C, C, 3) positions of the banded build's coarse nodes."""
+    ci = _coarse_index(len(axes[0]))
+    return np.stack(np.meshgrid(*[a[ci] for a in axes], indexing="ij"), axis=-1)
+
+
 def _banded_values(
-    axes: list[np.ndarray], voxel: float, band: float, v: np.ndarray, f: np.ndarray, normals
+    axes: list[np.ndarray], voxel: float, band: float, signed
 ) -> tuple[np.ndarray, np.ndarray]:
     """Signed distance on the grid ``axes``, exact wherever ``|d| <= band``.
 
@@ -310,9 +358,8 @@ def _banded_values(
             nodes.
     """
     res = len(axes[0])
-    ci = np.unique(np.r_[np.arange(0, res, _COARSE_STEP), res - 1])
-    coarse_nodes = np.stack(np.meshgrid(*[a[ci] for a in axes], indexing="ij"), axis=-1)
-    dc = _signed(coarse_nodes.reshape(-1, 3), v, f, normals).reshape((len(ci),) * 3)
+    ci = _coarse_index(res)
+    dc = signed(_coarse_nodes(axes).reshape(-1, 3)).reshape((len(ci),) * 3)
     idx = np.arange(res)
     k = np.clip(np.searchsorted(ci, idx, side="right") - 1, 0, len(ci) - 2)
     below = (idx - ci[k]) * voxel  # per-axis offset to the cell's lower / upper corner
@@ -351,7 +398,7 @@ def _banded_values(
     near = lower <= band
     if near.any():
         nodes = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
-        values[near] = _signed(nodes[near], v, f, normals)
+        values[near] = signed(nodes[near])
         error_bound[near] = 0.0
     return values, error_bound
 

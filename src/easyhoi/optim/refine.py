@@ -6,7 +6,8 @@ object units (``L`` the object's largest side in object units; Adam, ``lr_transl
 ``lr_global``: a step of 1e-4 moves the hand by 0.01 % of the object's size, whatever the metric
 scale, as the paper's normalised object frame) and the 45 articulation parameters
 (``lr_pose``); the shape and the metric scale ``m`` stay fixed during the gradient steps (the
-push-out before them may change ``m``, see :func:`push_out`). Object-frame vertices are
+push-out before them may change ``m``, see :func:`push_out`; its move is kept only when the
+loss below is lower after it). Object-frame vertices are
 ``model(params).vertices / m``. The loss is::
 
     L = hand_mask_weight   * soft_iou(visible hand, M_h)
@@ -33,6 +34,7 @@ onto it (:mod:`easyhoi.optim.close_gap`; the metric scale changes, the projectio
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import torch
 
@@ -172,8 +174,9 @@ def push_out(
     ``camera`` it moves along ``n``. Stops when nothing penetrates, when a move does not reduce
     the summed depth of the penetrating vertices (it is undone), or when the gradients cancel (a
     hand wrapped round the object: only its fingers can open), or after :data:`PUSH_OUT_MAX`
-    normalised units in all. The articulation is untouched, so a grasp that sank in as a whole
-    (a depth or scale error) comes out without bending fingers.
+    normalised units in all (the capped move is checked like the others). The articulation is
+    untouched, so a grasp that sank in as a whole (a depth or scale error) comes out without
+    bending fingers.
 
     With ``camera`` and ``as_scale`` the move along the rays is a change of the metric scale
     instead of a translation: the object-unit hand is scaled about the camera centre by a
@@ -196,7 +199,7 @@ def push_out(
         ray = ray / ray.norm().clamp_min(1e-12)
     scale = as_scale and ray is not None
     total = torch.zeros(3, dtype=verts.dtype, device=verts.device)
-    steps, last = 0, None
+    steps, last, capped = 0, None, False
 
     def moved(t: torch.Tensor) -> torch.Tensor:
         if scale:  # t = the centroid's move along its ray: scale about the camera centre
@@ -211,7 +214,7 @@ def push_out(
         if last is not None and sunk >= last[0]:  # the move made it worse: undo it, stop
             total, steps = last[1], steps - 1
             break
-        if not bool(inside.any()) or steps == cfg.push_out_steps:
+        if not bool(inside.any()) or steps == cfg.push_out_steps or capped:
             break
         last = (sunk, total)
         (grad,) = torch.autograd.grad(d[inside].sum(), v)
@@ -230,14 +233,41 @@ def push_out(
             total = total + ray * (sign * step / max(abs(cos), PUSH_OUT_MIN_COS))
         steps += 1
         if float(total.norm()) > PUSH_OUT_MAX * scene.extent:
+            # the capped move is the last one, but it is checked like any other (above)
             total = total * (PUSH_OUT_MAX * scene.extent / float(total.norm()))
-            break
+            capped = True
     note = {"steps": steps, "distance": float(total.norm()) / scene.extent}
     if scale:
         k = 1.0 + float(total @ ray) / dist
         note["scale_factor"] = 1.0 / k
         return torch.tensor(k, dtype=verts.dtype, device=verts.device), note
     return total.detach(), note
+
+
+def _accept_push(scene, p0, metric_scale, theta0, camera, cfg, optim_cfg, push):
+    """The start of the gradient steps: the pushed hand when the stage's own loss (every term,
+    at the first phase's render size) is lower there than at ``p0``, else ``p0``. The push-out
+    judges its move by the summed depth of the penetrating vertices alone; a move along the
+    camera rays can trade a shallow penetration for a hand the object now hides or that no
+    longer touches it, which the loss sees. Returns ``(translation, metric_scale)``; records
+    ``kept`` and both losses in the push's note."""
+    k_or_t, note = push
+    if cfg.push_out_scale:  # the same metric hand in the camera, the object's scale m / k
+        pushed, m1 = rescaled_along_rays(p0, metric_scale, float(k_or_t), camera)
+    else:
+        pushed, m1 = replace(p0, transl=p0.transl + float(metric_scale) * k_or_t), metric_scale
+    if note["steps"] == 0:
+        note["kept"] = False
+        return p0.transl.clone(), metric_scale
+    h, w = scene.render_size(cfg.resolution_schedule[0], optim_cfg.render_size)
+    masks, cam = scene.masks_at(h, w), camera.resized(w, h)
+    with torch.no_grad():
+        before = float(refine_terms(scene, p0, metric_scale, theta0, cfg, cam, masks)["total"])
+        after = float(refine_terms(scene, pushed, m1, theta0, cfg, cam, masks)["total"])
+    note.update(kept=after < before, loss_before=before, loss_after=after)
+    if after < before:
+        return pushed.transl.detach().clone(), m1
+    return p0.transl.clone(), metric_scale
 
 
 def fit_refine(
@@ -268,15 +298,11 @@ def fit_refine(
     go = p0.global_orient.clone().requires_grad_(cfg.optimise_global)
     camera = camera.detach().to(dt)
     push = None
+    tr0 = p0.transl.clone()
     if cfg.push_out_steps > 0:
         push = push_out(scene, p0, metric_scale, cfg, camera, as_scale=cfg.push_out_scale)
-    if push is None:
-        tr0 = p0.transl.clone()
-    elif cfg.push_out_scale:  # the same metric hand in the camera, the object's scale m / k
-        pushed, metric_scale = rescaled_along_rays(p0, metric_scale, float(push[0]), camera)
-        tr0 = pushed.transl
-    else:
-        tr0 = p0.transl + float(metric_scale) * push[0]
+        tr0, metric_scale = _accept_push(scene, p0, metric_scale, theta0, camera, cfg,
+                                         optim_cfg, push)  # fmt: skip
     unit = float(scene.extent) * float(metric_scale)  # metres per normalised object unit
     delta = torch.zeros_like(tr0).requires_grad_(cfg.optimise_global)
     pose = p0.pose.clone().requires_grad_(cfg.optimise_pose)
