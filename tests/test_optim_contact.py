@@ -344,3 +344,34 @@ def test_keypoint_term_holds_the_hand_where_the_detector_saw_it(hand):
         assert ("keypoints" in res.losses[-1]) == (w > 0)
     assert moved[0.0] > 0.4 * shift, moved  # the mask alone follows the shifted mask
     assert abs(moved[8.0]) < 0.25 * moved[0.0], moved
+
+
+@pytest.mark.parametrize("band", [0.0, 0.02])
+def test_scan_scale_matches_rendering_every_candidate(hand, band):
+    """The scan renders one z-buffer and scales its depths by m0 / m; the naive scan renders the
+    hand at every candidate depth. Same scores, same choice."""
+    import math
+
+    from easyhoi.optim.contact import SCALE_SCAN, _touch, scan_scale
+    from easyhoi.render.raster import depth_map
+
+    sc, scene, cfg, cam = _setup("cylinder", hand, **NOISE)
+    p, m, _ = initial_hand(scene, sc.inp, cam, SIZE)
+    verts = hand(p).vertices[0].detach()
+    m0 = 0.8 * m
+    h, w = scene.render_size(0.5, SIZE)
+    c = cam.detach().to(scene.dtype).resized(w, h)
+    target = scene.masks_at(h, w)["hand"] > 0.5
+    zo = scene.object_depth(c)
+    naive = []
+    for f in SCALE_SCAN:
+        v = (verts / (m0 * f) - c.t) @ c.R
+        zh = depth_map(v, scene.hand_model.faces, c)
+        vis = torch.isfinite(zh) & (zh <= zo)
+        iou = float((vis & target).sum()) / max(1, int((vis | target).sum()))
+        naive.append(((1.0 - iou) + _touch(scene, v, 48, band), abs(math.log(f)), m0 * f))
+    s_ref, _, m_ref = min(naive)
+    m_got, s_got = scan_scale(scene, verts, cam, m0, 48, SIZE, band=band)
+    assert m_got == pytest.approx(m_ref, rel=1e-12)
+    assert s_got == pytest.approx(s_ref, abs=1e-6)
+    assert len({round(s, 6) for s, _, _ in naive}) > 5  # the candidates differ: the test bites

@@ -171,15 +171,24 @@ class ContactState:
 
 def _touch(scene: Scene, verts_obj: torch.Tensor, sdf_resolution: int, band: float) -> float:
     """Touching term of the depth scan and the stage's score (see :func:`scan_scale`)."""
+    return float(_touch_batch(scene, verts_obj[None], sdf_resolution, band)[0])
+
+
+def _touch_batch(
+    scene: Scene, verts_obj: torch.Tensor, sdf_resolution: int, band: float
+) -> torch.Tensor:
+    """:func:`_touch` of each of ``B`` hands, ``verts_obj`` (B, V, 3): a (B,) tensor, one SDF
+    lookup for all of them."""
     with torch.no_grad():
-        d = scene.sdf(verts_obj, sdf_resolution)
+        B, V = verts_obj.shape[:2]
+        d = scene.sdf(verts_obj.reshape(-1, 3), sdf_resolution).reshape(B, V)
         if band > 0:
-            near = d[scene.regions.contact_vertices].abs()
+            near = d[:, scene.regions.contact_vertices].abs()
             # no contact zone in the band: the band term is flat, so the closest one's distance
             # beyond the band tells a hand resting near the object from one far off it
-            beyond = max(float(near.min()) - band, 0.0)
-            return (float(near.clamp_max(band).mean()) + beyond) / band
-        return abs(float(d.min()))
+            beyond = (near.min(dim=1).values - band).clamp_min(0.0)
+            return (near.clamp_max(band).mean(dim=1) + beyond) / band
+        return d.min(dim=1).values.abs()
 
 
 def scan_scale(
@@ -226,14 +235,19 @@ def scan_scale(
     R, t = cam.R, cam.t
     scored = []
     with torch.no_grad():
-        for f in factors:
-            m = m0 * float(f)
-            v = (verts_cam.to(scene.dtype) / m - t) @ R
-            zh = depth_map(v, scene.hand_model.faces, cam)
+        vc = verts_cam.to(scene.dtype)
+        ms = [m0 * float(f) for f in factors]
+        # a candidate scales the hand about the camera centre: the same projection, every depth
+        # times m0 / m, so one z-buffer serves all of them
+        zh0 = depth_map((vc / m0 - t) @ R, scene.hand_model.faces, cam)
+        touch = _touch_batch(scene, torch.stack([(vc / m - t) @ R for m in ms]), sdf_resolution,
+                             band).tolist()  # fmt: skip
+        for f, m, tch in zip(factors, ms, touch, strict=True):
+            zh = zh0 * (m0 / m)
             vis = torch.isfinite(zh) & (zh <= zo)
             union = int((vis | target).sum())
             iou = float((vis & target).sum()) / union if union else 0.0
-            score = (1.0 - iou) + _touch(scene, v, sdf_resolution, band)
+            score = (1.0 - iou) + tch
             scored.append((score, abs(math.log(f)), m))
     best = min(s for s, _, _ in scored)
     score, _, m = min((c for c in scored if c[0] <= best + tie_margin), key=lambda c: c[1])
