@@ -248,9 +248,9 @@ def _accept_push(scene, p0, metric_scale, theta0, camera, cfg, optim_cfg, push):
     """The start of the gradient steps: the pushed hand when the stage's own loss (every term,
     at the first phase's render size) is lower there than at ``p0``, else ``p0``. The push-out
     judges its move by the summed depth of the penetrating vertices alone; a move along the
-    camera rays can trade a shallow penetration for a hand the object now hides or that no
-    longer touches it, which the loss sees. Returns ``(translation, metric_scale)``; records
-    ``kept`` and both losses in the push's note."""
+    camera rays also changes what the object hides of the hand (the mask term) and which pads
+    lie on the surface (the contact term, within its radius), which the loss sees. Returns
+    ``(translation, metric_scale)``; records ``kept`` and both losses in the push's note."""
     k_or_t, note = push
     if cfg.push_out_scale:  # the same metric hand in the camera, the object's scale m / k
         pushed, m1 = rescaled_along_rays(p0, metric_scale, float(k_or_t), camera)
