@@ -69,7 +69,7 @@ from easyhoi.config import ContactStageConfig, OptimConfig
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import HOIInput, StageResult
 from easyhoi.optim.adam import Adam
-from easyhoi.optim.hand_terms import keypoint_drift_loss, keypoint_loss
+from easyhoi.optim.hand_terms import photo_keypoint_terms
 from easyhoi.optim.loop import StageLoop, early_stop, run_phases
 from easyhoi.optim.losses import soft_iou_loss
 from easyhoi.optim.placement import camera_hand_to_object, hand_in_camera, move_hand, rest_wrist
@@ -103,6 +103,7 @@ class ContactState:
         dt = scene.dtype
         self.scene = scene
         self.camera = camera.detach().to(dt)
+        self._intrinsics = _origin_camera(self.camera)  # projects camera-frame points
         self.params_cam = params_cam.detach().to(dtype=dt)
         with torch.no_grad():
             out = scene.hand_model(self.params_cam)
@@ -124,7 +125,7 @@ class ContactState:
         scale moves the hand along the camera rays, so it does not change them."""
         Rr = axis_angle_to_matrix(self.r)
         k = (self.k0 - self.c0) @ Rr.T + self.c0 + self.L * self.delta
-        return _origin_camera(self.camera).resized(width, height).project(k)[0]
+        return self._intrinsics.resized(width, height).project(k)[0]
 
     def verts_obj(self) -> torch.Tensor:
         """(V, 3) hand vertices in the object frame, object units."""
@@ -332,15 +333,12 @@ def _rot_prior(state: ContactState, cfg: ContactStageConfig) -> torch.Tensor:
 def _keypoint_terms(scene: Scene, state: ContactState, cfg: ContactStageConfig) -> torch.Tensor:
     """The weighted keypoint terms of the mask fit: the detector's keypoints hold the hand where
     the photo shows it (the robust term per joint, the drift term for the hand as a whole)."""
-    kp = scene.keypoints
     H, W = scene.image_size
-    uv = state.keypoints_uv(W, H)
-    loss = cfg.keypoint_weight * keypoint_loss(uv, kp.points, kp.size, cfg.keypoint_sigma,
-                                               kp.confidence)  # fmt: skip
-    if cfg.keypoint_drift_weight > 0:
-        loss = loss + cfg.keypoint_drift_weight * keypoint_drift_loss(
-            uv, kp.points, kp.size, cfg.keypoint_sigma, kp.confidence
-        )
+    t = photo_keypoint_terms(state.keypoints_uv(W, H), scene.keypoints, cfg.keypoint_sigma,
+                             cfg.keypoint_drift_weight > 0)  # fmt: skip
+    loss = cfg.keypoint_weight * t["keypoints"]
+    if "keypoint_drift" in t:
+        loss = loss + cfg.keypoint_drift_weight * t["keypoint_drift"]
     return loss
 
 

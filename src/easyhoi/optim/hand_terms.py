@@ -44,6 +44,7 @@ __all__ = [
     "HINGE_TOLERANCE",
     "keypoint_drift_loss",
     "keypoint_loss",
+    "photo_keypoint_terms",
     "pose_prior_loss",
     "prior_tables",
 ]
@@ -187,6 +188,24 @@ def keypoint_drift_loss(
     p, q, w = _keypoint_inputs("keypoint_drift_loss", pred, target, scale, sigma, weights)
     mean = ((p - q) * w[:, None]).sum(1) / w.sum()  # (B, 2)
     return ((mean**2).sum(-1) / (scale * sigma) ** 2).mean()
+
+
+def photo_keypoint_terms(
+    uv: torch.Tensor, keypoints, sigma: float, drift: bool
+) -> dict[str, torch.Tensor]:
+    """The keypoint terms of a stage, unweighted: ``uv`` (21, 2) reprojected keypoints against
+    the detector's ``keypoints`` (an :class:`easyhoi.optim.state.PhotoKeypoints`: points,
+    per-joint confidence, hand size) at the Geman-McClure scale ``sigma``.
+
+    Returns:
+        dict: ``keypoints`` (:func:`keypoint_loss`) and, with ``drift``, ``keypoint_drift``
+        (:func:`keypoint_drift_loss`).
+    """
+    args = (keypoints.points, keypoints.size, sigma, keypoints.confidence)
+    out = {"keypoints": keypoint_loss(uv, *args)}
+    if drift:
+        out["keypoint_drift"] = keypoint_drift_loss(uv, *args)
+    return out
 
 
 def _keypoint_inputs(name: str, pred, target, scale: float, sigma: float, weights):

@@ -43,7 +43,7 @@ from easyhoi.hand.regions import DIGIT_JOINTS
 from easyhoi.hoi import StageResult
 from easyhoi.optim.adam import Adam
 from easyhoi.optim.close_gap import close_gap, rescaled_along_rays
-from easyhoi.optim.hand_terms import keypoint_drift_loss, keypoint_loss, pose_prior_loss
+from easyhoi.optim.hand_terms import photo_keypoint_terms, pose_prior_loss
 from easyhoi.optim.loop import StageLoop, restore, run_phases, snapshot
 from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
 from easyhoi.optim.state import Scene, hard_iou
@@ -101,13 +101,10 @@ def refine_terms(
     if cfg.keypoint_weight > 0 and kp is not None:
         H, W = scene.image_size
         uv, _ = camera.resized(W, H).project(out.keypoints[0] / metric_scale)
-        terms["keypoints"] = keypoint_loss(uv, kp.points, kp.size, cfg.keypoint_sigma,
-                                           kp.confidence)  # fmt: skip
+        drift = cfg.keypoint_drift_weight > 0
+        terms.update(photo_keypoint_terms(uv, kp, cfg.keypoint_sigma, drift))
         total = total + cfg.keypoint_weight * terms["keypoints"]
-        if cfg.keypoint_drift_weight > 0:
-            terms["keypoint_drift"] = keypoint_drift_loss(
-                uv, kp.points, kp.size, cfg.keypoint_sigma, kp.confidence
-            )
+        if "keypoint_drift" in terms:
             total = total + cfg.keypoint_drift_weight * terms["keypoint_drift"]
     if cfg.prior_weight > 0:
         # the axes are the right model's: a left hand's articulation is mirrored first
@@ -252,13 +249,13 @@ def _accept_push(scene, p0, metric_scale, theta0, camera, cfg, optim_cfg, push):
     lie on the surface (the contact term, within its radius), which the loss sees. Returns
     ``(translation, metric_scale)``; records ``kept`` and both losses in the push's note."""
     k_or_t, note = push
+    if note["steps"] == 0:
+        note["kept"] = False
+        return p0.transl.clone(), metric_scale
     if cfg.push_out_scale:  # the same metric hand in the camera, the object's scale m / k
         pushed, m1 = rescaled_along_rays(p0, metric_scale, float(k_or_t), camera)
     else:
         pushed, m1 = replace(p0, transl=p0.transl + float(metric_scale) * k_or_t), metric_scale
-    if note["steps"] == 0:
-        note["kept"] = False
-        return p0.transl.clone(), metric_scale
     h, w = scene.render_size(cfg.resolution_schedule[0], optim_cfg.render_size)
     masks, cam = scene.masks_at(h, w), camera.resized(w, h)
     with torch.no_grad():
