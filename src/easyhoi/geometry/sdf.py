@@ -239,7 +239,8 @@ def _winding_signed(p: np.ndarray, v: np.ndarray, f: np.ndarray, normals) -> np.
 
 def _sign_function(v: np.ndarray, f: np.ndarray, normals, probe: np.ndarray):
     """The signed distance function of the grid build: :func:`_signed` (pseudo-normals) when its
-    signs agree with the winding number's at every ``probe`` point, else :func:`_winding_signed`.
+    signs agree with the winding number's at every ``probe`` point, else :func:`_winding_signed`;
+    returned with its values at ``probe``.
 
     The pseudo-normal sign is exact for a closed surface that does not cross itself. A
     watertight surface that folds through itself (a deformed thin wall, a self-intersecting
@@ -257,7 +258,7 @@ def _sign_function(v: np.ndarray, f: np.ndarray, normals, probe: np.ndarray):
 
     ps = pseudo(probe)
     ws = winding(probe)
-    return pseudo if bool(np.all((ps < 0) == (ws < 0))) else winding
+    return (pseudo, ps) if bool(np.all((ps < 0) == (ws < 0))) else (winding, ws)
 
 
 def build_sdf_grid(
@@ -311,13 +312,13 @@ def build_sdf_grid(
     v = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
     f = np.ascontiguousarray(mesh.faces, dtype=np.int64)
     normals = _pseudo_normals(v, f)
-    signed = _sign_function(v, f, normals, _coarse_nodes(axes).reshape(-1, 3))
+    signed, coarse = _sign_function(v, f, normals, _coarse_nodes(axes).reshape(-1, 3))
     if exact_band is None or resolution <= 2 * _COARSE_STEP:
         nodes = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
         values = signed(nodes).reshape(resolution, resolution, resolution)
     else:
         voxel = 2.0 * half / (resolution - 1)
-        values = _banded_values(axes, voxel, float(exact_band) * voxel, signed)[0]
+        values = _banded_values(axes, voxel, float(exact_band) * voxel, signed, coarse)[0]
     return SDFGrid(
         values=torch.as_tensor(values, dtype=dtype, device="cpu"),  # built here; SDFGrid.to moves
         bounds_min=torch.as_tensor(bmin, dtype=dtype, device="cpu"),
@@ -338,9 +339,12 @@ def _coarse_nodes(axes: list[np.ndarray]) -> np.ndarray:
 
 
 def _banded_values(
-    axes: list[np.ndarray], voxel: float, band: float, signed
+    axes: list[np.ndarray], voxel: float, band: float, signed, coarse: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Signed distance on the grid ``axes``, exact wherever ``|d| <= band``.
+
+    ``signed`` maps (N, 3) points to their signed distances; ``coarse``, when given, holds its
+    values at :func:`_coarse_nodes` (flattened), which step 1 then does not compute again.
 
     1. Exact values on a coarse grid: every ``_COARSE_STEP``-th node per axis plus the last one.
     2. The distance is 1-Lipschitz, so a fine node ``x`` in the coarse cell with corners ``y``
@@ -359,7 +363,9 @@ def _banded_values(
     """
     res = len(axes[0])
     ci = _coarse_index(res)
-    dc = signed(_coarse_nodes(axes).reshape(-1, 3)).reshape((len(ci),) * 3)
+    if coarse is None:  # ``signed`` at the coarse nodes, when the caller has not computed them
+        coarse = signed(_coarse_nodes(axes).reshape(-1, 3))
+    dc = np.asarray(coarse).reshape((len(ci),) * 3)
     idx = np.arange(res)
     k = np.clip(np.searchsorted(ci, idx, side="right") - 1, 0, len(ci) - 2)
     below = (idx - ci[k]) * voxel  # per-axis offset to the cell's lower / upper corner
