@@ -68,3 +68,22 @@ def test_gradient_paths_never_reuse(monkeypatch):
     (g_a,) = torch.autograd.grad(a.sum(), verts)
     (g_b,) = torch.autograd.grad(b.sum(), verts)
     assert torch.equal(g_a, g_b)
+
+
+def test_face_gather_matches_advanced_indexing_for_one_and_many_meshes():
+    """The corner gather (one mesh: along the leading dimension) gives the values and the
+    vertex gradients of plain ``uv[:, faces]`` indexing, bit for bit."""
+    verts, faces, cam = _scene()
+    for batch in (verts[None], torch.stack([verts, verts.flip(0)])):
+        w = torch.randn(batch.shape[0] * faces.shape[0], 3, 2, dtype=torch.float64)
+        wz = torch.randn(batch.shape[0] * faces.shape[0], 3, dtype=torch.float64)
+        tri_uv, tri_z, keep = _common._project_faces(batch, faces, cam, 1e-3)
+        g = torch.autograd.grad((tri_uv * w).sum() + (tri_z * wz).sum(), verts)[0]
+        uv, z = cam.project(batch)
+        ref_uv = uv[:, faces].reshape(-1, 3, 2)
+        ref_z = z[:, faces].reshape(-1, 3)
+        ref_g = torch.autograd.grad((ref_uv * w).sum() + (ref_z * wz).sum(), verts)[0]
+        assert keep.shape[0] == ref_uv.shape[0]
+        assert torch.equal(tri_uv, ref_uv) and torch.equal(tri_z, ref_z)
+        assert torch.allclose(g, ref_g, rtol=1e-12, atol=1e-12)
+        assert g.abs().sum() > 0
