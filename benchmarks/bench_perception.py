@@ -24,7 +24,10 @@ take a leak away; then the one-point IoU is kept). ``point2_worse_by_0.05`` coun
 whose mask the second point makes worse. ``fix`` is the second gesture of either kind: a
 background point (``--background-point``) at the deepest pixel of what the one-point mask takes
 in beyond the object, when that is a region one sees (``tests/perception_refs.background_point``),
-else the second object point above.
+else the second object point above. ``cands`` (``point_candidates_ge_0.5`` in the summary) is
+the best IoU any candidate of the one-click path reaches for the hand the click picks, each
+finished as the click finishes the one it keeps (``ClassicalHOISegmenter.click_candidates``):
+what a perfect choice among the click's candidates would give (at least the one-point IoU).
 
 The reference object is every object a hand holds (``held_by``), visibly or not.
 
@@ -198,6 +201,26 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
     return row
 
 
+def click_ceiling(rgb, hands, segmenter, prompts, ref_obj) -> float | None:
+    """The best IoU with ``ref_obj`` that any finished candidate of the one-click path reaches,
+    for the hand the click picks; None for a segmenter without ``click_candidates``."""
+    from easyhoi.perception.chain import nearest_hand
+
+    if ref_obj is None or not hasattr(segmenter, "click_candidates"):
+        return None
+    point = prompts.object_points[0]
+    i = nearest_hand(hands, point)
+    others = [h for j, h in enumerate(hands) if j != i]
+    (x0, y0, x1, y1), cands = segmenter.click_candidates(rgb, hands[i], point, others)
+    best = 0.0
+    for m, _ in cands:
+        full = np.zeros(ref_obj.shape, bool)
+        full[y0:y1, x0:x1] = cv2.resize(m.astype(np.uint8), (x1 - x0, y1 - y0),
+                                        interpolation=cv2.INTER_NEAREST) > 0  # fmt: skip
+        best = max(best, iou(full, ref_obj))
+    return best
+
+
 def run_click(rgb, ref, detector, segmenter) -> dict:
     """The one-point run alone (``--click-only``): object IoU and seconds of the click."""
     from easyhoi.perception.chain import segment_hands
@@ -213,6 +236,7 @@ def run_click(rgb, ref, detector, segmenter) -> dict:
         row["cpu_seconds_point"] = time.process_time() - c0
         m1 = sp.object_mask if sp is not None else None
         row["iou_point"] = iou(m1, ref["object"])
+        row["ceiling_point"] = click_ceiling(rgb, hands, segmenter, p, ref["object"])
         sys.path.insert(0, str(ROOT))
         from tests.perception_refs import background_point, second_point
 
@@ -242,6 +266,12 @@ def click_summary(rows: list[dict]) -> dict:
         if pts
         else 0.0,
         "point_mean_iou": float(np.mean([r.get("iou_point", 0.0) for r in pts])) if pts else 0.0,
+        # some candidate of the click reaches 0.5 (what a perfect choice among them would give)
+        "point_candidates_ge_0.5": float(
+            np.mean([(r.get("ceiling_point") or 0.0) >= 0.5 for r in pts])
+        )
+        if pts
+        else 0.0,
         "point2_iou_ge_0.5": float(np.mean([r.get("iou_point2", 0.0) >= 0.5 for r in pts]))
         if pts
         else 0.0,
@@ -367,6 +397,7 @@ def main(argv=None) -> int:
                 f"{name[:44]:44s} {half:5s} pt={row.get('iou_point', float('nan')):.2f} "
                 f"pt2={row.get('iou_point2', float('nan')):.2f} "
                 f"fix={row.get('iou_fix', float('nan')):.2f}{row.get('fix', '')[:2]} "
+                f"cands={row.get('ceiling_point') or float('nan'):.2f} "
                 f"{row.get('seconds_point', 0.0):.2f}s "
                 f"cpu {row.get('cpu_seconds_point', 0.0):.2f}s",
                 file=sys.stderr,

@@ -281,3 +281,32 @@ def test_the_first_object_point_picks_the_hand():
     assert np.abs(KP - [300.0, 0.0] - mean).sum(1).min() < np.abs(KP - mean).sum(1).min()
     assert prompted_hand_order([left, right], first_near_right) == ([1], "object prompt")
     assert prompted_hand_order([left, right], Prompts(object_points=(far,)))[0] == [0]
+
+
+def test_click_candidates_hold_the_clicked_mask_and_rank_by_score():
+    """``click_candidates`` lists every finished candidate of the click, best score first: the
+    first one, mapped to the photo, is the click's object mask, and the best of them is at
+    least as good as it."""
+    obj = ((XX - 195) ** 2 / 30**2 + (YY - 65) ** 2 / 45**2) < 1  # the two-coloured cup
+    img = canvas()
+    img[obj & (YY < 45)] = (60, 20, 20)
+    img[obj & (YY >= 45)] = (230, 200, 60)
+    img, _ = finish(img)
+    seg = ClassicalHOISegmenter(seed=0)
+    (x0, y0, x1, y1), cands = seg.click_candidates(img, det(), (195.0, 75.0))
+    assert len(cands) > 3
+    scores = [s for _, s in cands]
+    assert scores == sorted(scores, reverse=True)
+
+    def full(m):
+        out = np.zeros(obj.shape, bool)
+        out[y0:y1, x0:x1] = (
+            cv2.resize(m.astype(np.uint8), (x1 - x0, y1 - y0), interpolation=cv2.INTER_NEAREST) > 0
+        )
+        return out
+
+    clicked = click(img, 195.0, 75.0)
+    assert np.array_equal(full(cands[0][0]), clicked)
+    ious = [iou(full(m), obj) for m, _ in cands]
+    assert max(ious) >= iou(clicked, obj) > 0.8
+    assert min(ious) < 0.8  # the list holds worse candidates too (it is not one mask repeated)

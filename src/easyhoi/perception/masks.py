@@ -219,23 +219,15 @@ class ClassicalHOISegmenter:
         from easyhoi.perception.prompted import clicked_object, prompted_object
 
         w = self._setup(image, hand, prompts, others)
-        prompts, clicks, side = w.prompts, w.clicks, w.side
-        img, lab, scene, to_work, shape = w.img, w.lab, w.scene, w.to_work, w.img.shape[:2]
+        prompts, clicks = w.prompts, w.clicks
+        img, scene, to_work, shape = w.img, w.scene, w.to_work, w.img.shape[:2]
         H, W = w.full_shape
         (x0, y0, x1, y1), s = w.crop, w.scale
         hand_m, kp, d2, L, excl = scene.hand, scene.kp, scene.skin_d2, scene.palm, w.excl
-        min_size = w.min_size
         prompted = prompts is not None and prompts.has_object_prompt
 
         def proposals():
-            return propose(
-                img,
-                lab,
-                excl,
-                self.segment_scale * side / self.work_side,
-                min_size,
-                max_size=4.0 * ho.AREA_RANGE[1] * scene.hand_area,
-            )
+            return self._prompt_proposals(w)
 
         props = None
         if clicks:
@@ -383,6 +375,52 @@ class ClassicalHOISegmenter:
             min_size=max(8, int((0.12 * L) ** 2)),
             to_work=to_work,
         )
+
+    def _prompt_proposals(self, w: _Work) -> Proposals:
+        """Hypotheses of the prompted paths: one hierarchy at :attr:`segment_scale`."""
+        return propose(
+            w.img,
+            w.lab,
+            w.excl,
+            self.segment_scale * w.side / self.work_side,
+            w.min_size,
+            max_size=4.0 * ho.AREA_RANGE[1] * w.scene.hand_area,
+        )
+
+    def click_candidates(
+        self,
+        image: np.ndarray,
+        hand: HandDetection,
+        point: tuple[float, float],
+        others: tuple[HandDetection, ...] | list[HandDetection] = (),
+    ) -> tuple[tuple[int, int, int, int], list[tuple[np.ndarray, float]]]:
+        """The working crop (x0, y0, x1, y1) in photo pixels and every candidate the one-click
+        path scores for the object point ``point`` (x, y, photo pixels) of ``hand``: (mask in
+        crop pixels, score) pairs, best score first, each finished as the click finishes the one
+        it keeps (what the hand mask took of it given back, its outline settled by GrabCut), so
+        that the first one is the click's object mask. Used to measure how good the best
+        candidate is, whichever the scoring picks."""
+        from easyhoi.perception.click import (
+            click_proposals,
+            scored_candidates,
+            settle,
+            take_back_from_hand,
+        )
+
+        w = self._setup(image, hand, Prompts(object_points=(tuple(point),)), others)
+        (x0, y0, x1, y1), (H, W) = w.crop, w.full_shape
+        h, wd = w.img.shape[:2]
+        p = np.clip(w.to_work([point])[0], 0, [wd - 1, h - 1])
+        regions = click_proposals(w.img, w.scene, p, self._prompt_proposals(w))
+        inside = (x0 > 0, y0 > 0, x1 < W, y1 < H)
+        scored = scored_candidates(w.img, w.scene, p, regions, self.iterations, self.seed, inside)
+        order = sorted(range(len(scored)), key=lambda i: -scored[i][0])
+
+        def finish(m):
+            return settle(w.img, take_back_from_hand(m, w.scene), w.scene, p, self.iterations,
+                          self.seed)  # fmt: skip
+
+        return w.crop, [(finish(scored[i][2]), float(scored[i][0])) for i in order]
 
     def _auto_proposals(self, w: _Work) -> Proposals:
         """Hypotheses of the automatic path: the pooled hierarchies of :attr:`auto_scales`."""
