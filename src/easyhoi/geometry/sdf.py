@@ -224,17 +224,22 @@ def _signed(p: np.ndarray, v: np.ndarray, f: np.ndarray, normals) -> np.ndarray:
     return np.where(s < 0, -dist, dist)
 
 
-def _winding_signed(p: np.ndarray, v: np.ndarray, f: np.ndarray, normals) -> np.ndarray:
-    """The exact distance of :func:`_signed`, signed by the generalised winding number (inside
-    where the surface winds round the point, as a ray-parity test says) instead of the closest
-    feature's pseudo-normal."""
+def _resigned(p: np.ndarray, v: np.ndarray, f: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """The distances ``|d|`` of the points ``p``, signed by the generalised winding number
+    (inside where the surface winds round the point, as a ray-parity test says) instead of the
+    closest feature's pseudo-normal."""
     import point_cloud_utils as pcu
 
     if len(p) == 0:
         return np.zeros(0)
-    d = np.abs(_signed(p, v, f, normals))
     w = np.asarray(pcu.signed_distance_to_mesh(np.ascontiguousarray(p), v, f)[0])
+    d = np.abs(d)
     return np.where(w < 0, -d, d)
+
+
+def _winding_signed(p: np.ndarray, v: np.ndarray, f: np.ndarray, normals) -> np.ndarray:
+    """The exact distance of :func:`_signed`, signed by the winding number (:func:`_resigned`)."""
+    return _resigned(p, v, f, _signed(p, v, f, normals))
 
 
 def _sign_function(v: np.ndarray, f: np.ndarray, normals, probe: np.ndarray):
@@ -257,7 +262,7 @@ def _sign_function(v: np.ndarray, f: np.ndarray, normals, probe: np.ndarray):
         return _winding_signed(p, v, f, normals)
 
     ps = pseudo(probe)
-    ws = winding(probe)
+    ws = _resigned(probe, v, f, ps)  # the same distances, no second closest-point query
     return (pseudo, ps) if bool(np.all((ps < 0) == (ws < 0))) else (winding, ws)
 
 

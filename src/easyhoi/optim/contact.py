@@ -117,15 +117,17 @@ class ContactState:
 
     def verts_cam(self) -> torch.Tensor:
         """(V, 3) hand vertices in the object camera's frame, metres."""
+        return self._moved(self.v0)
+
+    def _moved(self, pts: torch.Tensor) -> torch.Tensor:
+        """Camera-frame points of the start hand ``pts`` moved by the rigid ``r`` and ``delta``."""
         Rr = axis_angle_to_matrix(self.r)
-        return (self.v0 - self.c0) @ Rr.T + self.c0 + self.L * self.delta
+        return (pts - self.c0) @ Rr.T + self.c0 + self.L * self.delta
 
     def keypoints_uv(self, width: int, height: int) -> torch.Tensor:
         """(21, 2) the hand's keypoints projected into a ``width`` x ``height`` photo. The metric
         scale moves the hand along the camera rays, so it does not change them."""
-        Rr = axis_angle_to_matrix(self.r)
-        k = (self.k0 - self.c0) @ Rr.T + self.c0 + self.L * self.delta
-        return self._intrinsics.resized(width, height).project(k)[0]
+        return self._intrinsics.resized(width, height).project(self._moved(self.k0))[0]
 
     def verts_obj(self) -> torch.Tensor:
         """(V, 3) hand vertices in the object frame, object units."""

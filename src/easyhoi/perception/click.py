@@ -353,6 +353,14 @@ def settle(
     return m if encloses(r, scene.background_rings) else r
 
 
+def finish_candidate(
+    img: np.ndarray, scene: ho.Scene, m: np.ndarray, p: np.ndarray, iterations: int, seed: int
+) -> np.ndarray:
+    """What a click keeps of its candidate ``m``: the pixels the hand mask took of it given back
+    (:func:`take_back_from_hand`), its outline settled by GrabCut (:func:`settle`)."""
+    return settle(img, take_back_from_hand(m, scene), scene, p, iterations, seed)
+
+
 def click_proposals(
     img: np.ndarray, scene: ho.Scene, p: np.ndarray, props: Proposals
 ) -> list[np.ndarray]:
@@ -452,7 +460,7 @@ def click_object(
     if not scored:
         return _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden, []
     best = max(range(len(scored)), key=lambda i: scored[i][0])
-    obj = settle(img, take_back_from_hand(scored[best][2], scene), scene, p, iterations, seed)
+    obj = finish_candidate(img, scene, scored[best][2], p, iterations, seed)
     for k in range(1, len(pts)):  # further clicks: the object grown to take each in
         obj = add_click(img, scene, obj, pts[: k + 1], iterations, seed, inside)
     return obj, [(s, c) for s, c, _ in scored]

@@ -122,6 +122,12 @@ class _Work:
     min_size: int
     to_work: Callable[[np.ndarray], np.ndarray]
 
+    @property
+    def inside(self) -> tuple[bool, bool, bool, bool]:
+        """Whether the photo goes on beyond the crop's left, top, right and bottom side."""
+        (x0, y0, x1, y1), (H, W) = self.crop, self.full_shape
+        return (x0 > 0, y0 > 0, x1 < W, y1 < H)
+
 
 @register("segmenter", "classical")
 class ClassicalHOISegmenter:
@@ -238,7 +244,7 @@ class ClassicalHOISegmenter:
                 proposals,
                 self.iterations,
                 self.seed,
-                inside=(x0 > 0, y0 > 0, x1 < W, y1 < H),  # crop sides inside the photo
+                inside=w.inside,
             )
             has_object = bool(obj.any())
         elif prompted:
@@ -400,27 +406,19 @@ class ClassicalHOISegmenter:
         it keeps (what the hand mask took of it given back, its outline settled by GrabCut), so
         that the first one is the click's object mask. Used to measure how good the best
         candidate is, whichever the scoring picks."""
-        from easyhoi.perception.click import (
-            click_proposals,
-            scored_candidates,
-            settle,
-            take_back_from_hand,
-        )
+        from easyhoi.perception.click import click_proposals, finish_candidate, scored_candidates
 
         w = self._setup(image, hand, Prompts(object_points=(tuple(point),)), others)
-        (x0, y0, x1, y1), (H, W) = w.crop, w.full_shape
         h, wd = w.img.shape[:2]
         p = np.clip(w.to_work([point])[0], 0, [wd - 1, h - 1])
         regions = click_proposals(w.img, w.scene, p, self._prompt_proposals(w))
-        inside = (x0 > 0, y0 > 0, x1 < W, y1 < H)
-        scored = scored_candidates(w.img, w.scene, p, regions, self.iterations, self.seed, inside)
+        scored = scored_candidates(w.img, w.scene, p, regions, self.iterations, self.seed, w.inside)
         order = sorted(range(len(scored)), key=lambda i: -scored[i][0])
-
-        def finish(m):
-            return settle(w.img, take_back_from_hand(m, w.scene), w.scene, p, self.iterations,
-                          self.seed)  # fmt: skip
-
-        return w.crop, [(finish(scored[i][2]), float(scored[i][0])) for i in order]
+        return w.crop, [
+            (finish_candidate(w.img, w.scene, scored[i][2], p, self.iterations, self.seed),
+             float(scored[i][0]))
+            for i in order
+        ]  # fmt: skip
 
     def _auto_proposals(self, w: _Work) -> Proposals:
         """Hypotheses of the automatic path: the pooled hierarchies of :attr:`auto_scales`."""
