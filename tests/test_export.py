@@ -157,3 +157,20 @@ def test_pictures_of_a_large_photo_are_drawn_at_picture_size():
     assert abs(int(i2.hand_mask.sum()) - int(inp.hand_mask.sum()) / 4) < 0.05 * inp.hand_mask.sum()
     r3, i3 = picture_scale(result, inp, max_side=2000)
     assert r3 is result and i3 is inp
+
+
+def test_result_json_records_the_refinements_gap_closing(result):
+    from dataclasses import replace
+
+    note = {"gap_before": 0.05, "moved": False,
+            "meet": {"moved": True, "distance_cm": 1.2, "shift_px": float("nan")}}  # fmt: skip
+    stages = [replace(st, extra={**(st.extra or {}), "close_gap": note})
+              if st.name == "refine" else st for st in result.stages]  # fmt: skip
+    d = result_json(replace(result, stages=tuple(stages)))
+    by_name = {s["name"]: s for s in d["stages"]}
+    assert by_name["refine"]["close_gap"]["meet"] == {
+        "moved": True,
+        "distance_cm": 1.2,
+        "shift_px": None,
+    }
+    assert all("close_gap" not in s for n, s in by_name.items() if n != "refine")

@@ -112,3 +112,15 @@ def test_uncertain_keypoints_are_named_as_keypoints_with_their_own_fix():
     assert "--hand-params" in low_confidence_lines(rep, "batch")[0]
     assert low_confidence_lines(rep, "demo")[0].endswith("where the hand is seen more clearly")
     assert "hand's keypoints" in str(low_confidence_error(rep))
+
+
+def test_contact_line_says_when_the_object_was_moved_onto_the_hand():
+    met = {"in_contact": True, "contact_distance_cm": -0.01, "object_moved_to_hand_cm": 1.6575}
+    assert contact_line(met) == (
+        "the object was moved 1.7 cm onto the hand, which the photo's masks place beside it: the "
+        "object mask or the hand's keypoints may be wrong (see masks.png); re-run with "
+        "--object-point X,Y on the held object (or --object-box X0,Y0,X1,Y1 around it)"
+    )
+    # a move within the contact tolerance is a touching hand anyway
+    assert contact_line({**met, "object_moved_to_hand_cm": 0.3}) is None
+    assert contact_line({**met, "object_moved_to_hand_cm": None}) is None

@@ -329,7 +329,10 @@ class RefineStageConfig:
     close_gap: bool = False
     """After the gradient steps, a hand that does not touch the object is moved along the camera
     rays (a change of the metric scale that keeps its projection) to where its nearest vertex
-    touches the surface (optim.close_gap; needs a camera). False: the paper."""
+    touches the surface (optim.close_gap.close_gap); when no such move reaches it (the hand lies
+    beside the object in the photo), the object is moved onto the hand by at most a finger's
+    width, the camera with the hand so that the hand keeps its projection
+    (optim.close_gap.meet). Needs a camera. False: the paper."""
 
     def __post_init__(self):
         _finite(self)

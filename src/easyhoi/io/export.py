@@ -205,7 +205,9 @@ def result_json(result: HOIResult) -> dict:
     ``camera`` (``K``, ``R``, ``t`` in metres, ``width``, ``height``, ``convention``),
     ``camera_object_units`` (the same camera before scaling), ``metric_scale``,
     ``plausibility``, ``timings``, ``stages`` (name, iterations, seconds, stop reason, final
-    losses), ``versions``, ``seed``, ``config``, ``meta``.
+    losses; the refinement's ``close_gap`` note when it ran: the gap before, whether the hand
+    was moved along its rays, and ``meet``, whether and how far the object was moved onto the
+    hand), ``versions``, ``seed``, ``config``, ``meta``.
     """
     result = _check(result)
     p = result.hand_params.detach()
@@ -213,9 +215,12 @@ def result_json(result: HOIResult) -> dict:
     stages = []
     for st in result.stages:
         last = {k: v for k, v in (st.losses[-1] if st.losses else {}).items()}
-        stages.append({"name": st.name, "iterations": int(st.iterations),
-                       "seconds": float(st.seconds), "stop_reason": st.stop_reason,
-                       "final_losses": _json_safe(last)})  # fmt: skip
+        entry = {"name": st.name, "iterations": int(st.iterations),
+                 "seconds": float(st.seconds), "stop_reason": st.stop_reason,
+                 "final_losses": _json_safe(last)}  # fmt: skip
+        if (st.extra or {}).get("close_gap") is not None:
+            entry["close_gap"] = _json_safe(st.extra["close_gap"])
+        stages.append(entry)
     return {
         "schema": EXPORT_SCHEMA,
         "version": EXPORT_VERSION,

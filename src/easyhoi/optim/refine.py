@@ -28,7 +28,9 @@ object units (object units / the object's largest side). A term with weight 0 is
 Adam over coarse-to-fine phases; each phase's lowest-loss state seeds the next; the last phase's
 best state is returned. Stopping: ``patience`` or the phase's share of ``max_iters``. With
 ``close_gap`` a returned hand that does not touch the object is then moved along the camera rays
-onto it (:mod:`easyhoi.optim.close_gap`; the metric scale changes, the projection does not).
+onto it (:mod:`easyhoi.optim.close_gap`; the metric scale changes, the projection does not), or,
+when it lies beside the object in the photo, the object is moved onto it by at most a finger's
+width (the returned camera moves with the hand, whose projection is kept).
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ from easyhoi.config import OptimConfig, RefineStageConfig
 from easyhoi.hand.regions import DIGIT_JOINTS
 from easyhoi.hoi import StageResult
 from easyhoi.optim.adam import Adam
-from easyhoi.optim.close_gap import close_gap, rescaled_along_rays
+from easyhoi.optim.close_gap import close_gap, meet, moved_with_camera, rescaled_along_rays
 from easyhoi.optim.hand_terms import photo_keypoint_terms, pose_prior_loss
 from easyhoi.optim.loop import StageLoop, restore, run_phases, snapshot
 from easyhoi.optim.losses import contact_loss, penetration_loss, pose_reg_loss, soft_iou_loss
@@ -351,6 +353,12 @@ def fit_refine(
                            0.5 * cfg.penetration_threshold, PUSH_OUT_MAX)  # fmt: skip
         if k != 1.0:
             params, metric_scale = rescaled_along_rays(params, metric_scale, k, camera)
+        else:
+            delta, gap["meet"] = meet(scene, params, metric_scale, camera, cfg.sdf_resolution,
+                                      0.5 * cfg.penetration_threshold, PUSH_OUT_MAX)  # fmt: skip
+            if delta is not None:
+                params, camera = moved_with_camera(params, metric_scale, camera, delta)
+                cam = camera.resized(cam.width, cam.height)
     with torch.no_grad():
         verts = scene.hand_model(params).vertices[0] / metric_scale
         _, visible, _ = scene.hand_silhouettes(verts, cam)

@@ -166,6 +166,9 @@ def optimize(
     report = plausibility(
         scene, params, m, camera, config.render_size, config.refine.sdf_resolution
     )
+    moved = _object_moved_to_hand_cm(stages)
+    if moved is not None:
+        report["object_moved_to_hand_cm"] = moved
     timings["plausibility"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     with torch.no_grad():
@@ -189,6 +192,16 @@ def optimize(
         meta=dict(inp.meta),
         hand_change=change,
     )
+
+
+def _object_moved_to_hand_cm(stages) -> float | None:
+    """How far the refinement moved the object onto a hand beside it (cm), None when it did
+    not (:func:`easyhoi.optim.close_gap.meet`): the contact it makes is not the photo's."""
+    for st in stages:
+        meet = ((st.extra or {}).get("close_gap") or {}).get("meet") or {}
+        if st.name == "refine" and meet.get("moved"):
+            return float(meet["distance_cm"])
+    return None
 
 
 def _stage_on_cpu(stage: StageResult) -> StageResult:
@@ -255,6 +268,7 @@ def _run_stages(inp: HOIInput, scene: Scene, config: OptimConfig, progress, timi
         except InvalidInputError as exc:  # e.g. NaN vertices reaching the renderer
             raise _stage_error("refine", exc) from exc
         m = float(res.metric_scale)  # the push-out may move the hand's depth as a scale
+        cam = res.camera  # moved with the hand when the object is met (optim.close_gap.meet)
         stages.append(res)
         timings["refine"] = res.seconds
     if not np.isfinite(m) or m <= 0:

@@ -104,12 +104,26 @@ def hand_choice_note(perception: dict) -> str | None:
     )
 
 
+#: A move of the object onto the hand (cm) from which :func:`contact_line` says so: the contact
+#: tolerance of ``in_contact``, below which a hand counts as touching anyway.
+MOVED_ONTO_HAND_CM = 0.5
+
+
 def contact_line(plausibility: dict, where: str = "cli", prompted: bool = False) -> str | None:
     """A sentence when the result's hand does not touch its object, else None.
 
     ``plausibility``: the result's report (``HOIResult.plausibility``, ``result.json``), whose
-    ``in_contact`` says whether a hand vertex is inside the object or within 5 mm of it.
+    ``in_contact`` says whether a hand vertex is inside the object or within 5 mm of it. A
+    contact the optimizer made by moving the object onto the hand by more than those 5 mm
+    (``object_moved_to_hand_cm``) is said as well: the masks placed them apart.
     """
+    moved = plausibility.get("object_moved_to_hand_cm")
+    if isinstance(moved, int | float) and moved >= MOVED_ONTO_HAND_CM:
+        return (
+            f"the object was moved {float(moved):.1f} cm onto the hand, which the photo's masks "
+            f"place beside it: the object mask or the hand's keypoints may be wrong (see "
+            f"masks.png); {advice('object', where, prompted)}"
+        )
     if plausibility.get("in_contact") is not False:
         return None
     gap = plausibility.get("contact_distance_cm")
