@@ -42,6 +42,13 @@ Usage::
     python benchmarks/bench_perception.py --split check --no-point
     python benchmarks/bench_perception.py --only mow-           # photos whose name has mow-
     python benchmarks/bench_perception.py --click-only          # only the one-point runs
+    python benchmarks/bench_perception.py --resample 0.9        # the photos at 0.9 x their size
+
+``--resample F`` resamples every photo by ``F`` before anything else (area averaging below 1,
+bicubic above, capped at the photo loader's 1600 px longer side), with the reference masks and
+the object point resampled alike: the same scenes at another pixel size. Working sizes are in
+palm lengths, so the rates should not depend on it; how much they move is how much of a rate
+is the particular pixels of these photos rather than what they show.
 
 Results: a Markdown table on stdout and ``benchmarks/results/bench_perception.json``.
 """
@@ -102,6 +109,17 @@ def fit_to(ref: dict, shape: tuple[int, int]) -> dict:
         "object": fit(ref["object"]),
         "point": pt,
     }
+
+
+def resample(rgb: np.ndarray, factor: float, max_side: int = 1600) -> np.ndarray:
+    """``rgb`` resampled by ``factor`` (area averaging below 1, bicubic above), its longer side
+    at most ``max_side`` as the photo loader keeps it."""
+    h, w = rgb.shape[:2]
+    f = min(float(factor), max_side / max(h, w)) if factor > 1 else float(factor)
+    if f == 1.0:
+        return rgb
+    size = (max(8, round(w * f)), max(8, round(h * f)))
+    return cv2.resize(rgb, size, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_CUBIC)
 
 
 def iou(a: np.ndarray | None, b: np.ndarray | None) -> float:
@@ -364,8 +382,16 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--click-only", action="store_true", help="only the one-point runs (no automatic choice)"
     )
+    ap.add_argument(
+        "--resample",
+        type=float,
+        default=1.0,
+        help="resample every photo by this factor first (the same scenes at another size)",
+    )
     ap.add_argument("--out", type=Path, default=RESULTS / "bench_perception.json")
     args = ap.parse_args(argv)
+    if not args.resample > 0:
+        ap.error(f"--resample must be > 0, got {args.resample}")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
     from easyhoi.io.image import load_image
@@ -386,7 +412,7 @@ def main(argv=None) -> int:
         name = Path(ref["image"]).name
         if args.only and args.only not in name:
             continue
-        rgb = load_image(args.data / ref["image"]).rgb
+        rgb = resample(load_image(args.data / ref["image"]).rgb, args.resample)
         ref = fit_to(ref, rgb.shape[:2])
         if args.click_only:
             row = run_click(rgb, ref, detector, segmenter)

@@ -1,0 +1,33 @@
+"""``bench_perception.py --resample``: the photo at another pixel size, as the loader would
+keep it, with the reference (masks and object point) following it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tests.helpers import load_script
+
+
+def test_resample_scales_the_photo_and_keeps_the_loader_cap():
+    bench = load_script("benchmarks/bench_perception.py")
+    rgb = np.zeros((300, 500, 3), np.uint8)
+    rgb[100:200, 200:300] = 255  # a white square
+    assert bench.resample(rgb, 1.0) is rgb
+    half = bench.resample(rgb, 0.5)
+    assert half.shape == (150, 250, 3)
+    # area averaging keeps the square's mean brightness
+    assert abs(half.mean() - rgb.mean()) < 0.5
+    assert bench.resample(rgb, 1.5).shape == (450, 750, 3)
+    # never beyond the loader's longer side of 1600 px
+    assert bench.resample(rgb, 10.0).shape == (960, 1600, 3)
+
+
+def test_reference_follows_the_resampled_photo():
+    bench = load_script("benchmarks/bench_perception.py")
+    obj = np.zeros((300, 500), bool)
+    obj[100:200, 200:300] = True
+    ref = {"hand": [obj.copy()], "object": obj, "point": (250.0, 150.0)}
+    small = bench.fit_to(ref, bench.resample(np.zeros((300, 500, 3), np.uint8), 0.5).shape[:2])
+    assert small["object"].shape == (150, 250)
+    assert small["point"] == (125.0, 75.0)
+    assert small["object"][75, 125] and small["object"].sum() == 50 * 50
