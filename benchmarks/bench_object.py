@@ -180,6 +180,9 @@ def run_scene(
     px_true = float(cam.K[0, 0]) / float(centre[2])
     row["scale_cue"] = md["hand_cues"]["px_per_m"] / px_true
     row["scale_shape"] = a["scale"] / row["scale_cue"]
+    # the step's own record of every family's score and its parts, to study the selection
+    row["scores"] = md["shape"]["scores"]
+    row["flat_by_grip"] = md["shape"]["flat_by_grip"]
     if oracle:
         from easyhoi.perception.shapes import FAMILIES
 
