@@ -166,3 +166,51 @@ def test_perception_section_names_the_keypoints_row():
     assert "<td>hand</td>" in section
     assert "<td>hand keypoints</td>" in section and "<td>21 of 21 keypoints move</td>" in section
     assert "<td>keypoints</td>" not in section
+
+
+def test_object_shape_section_says_where_the_thickness_came_from():
+    scores = {
+        "slab": {"iou": 0.99, "complexity": 0.02, "score": 0.97},
+        "inflation": {"iou": 0.98, "complexity": 0.08, "score": 0.90, "depth_scaled": 0.3},
+        "cuboid": {"iou": 0.9, "complexity": 0.06, "score": 0.86, "edge_bonus": 0.02},
+    }
+    meta = {"object_shape": {"shape": "slab", "scores": scores, "depth_cue_from": "pinch",
+                             "depth_cue_confidence": 0.6, "flat_by_grip": True}}  # fmt: skip
+    section = report_mod._shape_html(meta, np.array([12.0, 8.0, 0.5]))
+    assert "<h2>Object shape</h2>" in section
+    assert "chosen: slab" in section and "aperture of a pinch" in section
+    assert "the grip says the object is flat" in section
+    assert "12.0 x 8.0 x 0.5 cm" in section
+    # every family, best score first, the winner marked, the score's parts named
+    rows = re.findall(r"<tr><td>([^<]+)</td>", section)
+    assert rows == ["slab (chosen)", "inflation", "cuboid"]
+    assert "depth scaled 0.3" in section and "edge bonus 0.02" in section
+    # no grip cue: the thickness is said to be the family's assumption
+    meta["object_shape"].update(depth_cue_from=None, flat_by_grip=False)
+    assert "not measured" in report_mod._shape_html(meta)
+    # an imported mesh records no shape choice: no section
+    assert report_mod._shape_html({}) == ""
+
+
+def test_report_of_a_chain_result_has_the_object_shape(scene):
+    result, inp = scene
+    meta = dict(result.meta, object_shape={"shape": "revolution", "scores": {
+        "revolution": {"iou": 0.95, "complexity": 0.0, "score": 0.95}}})  # fmt: skip
+    from dataclasses import replace
+
+    page = report_html(replace(result, meta=meta), inp)
+    assert "<h2>Object shape</h2>" in page and "revolution (chosen)" in page
+    assert re.search(r"size \(along its principal axes\): \d+\.\d x \d+\.\d x \d+\.\d cm", page)
+
+
+def test_object_size_is_the_extent_along_the_principal_axes():
+    from types import SimpleNamespace
+
+    from scipy.spatial.transform import Rotation
+
+    box = trimesh.creation.box(extents=(0.5, 0.2, 0.05))  # object units
+    box.apply_transform(np.r_[np.c_[Rotation.from_rotvec([0.4, -0.9, 0.3]).as_matrix(),
+                                    [1.0, 2.0, 3.0]], [[0, 0, 0, 1]]])  # fmt: skip
+    fake = SimpleNamespace(object_mesh=box, metric_scale=0.4)  # 0.4 m per unit
+    sides = report_mod._object_sides_cm(fake)
+    assert np.allclose(sides, [20.0, 8.0, 2.0], atol=1e-6)

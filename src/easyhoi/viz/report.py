@@ -110,6 +110,68 @@ def _perception_html(meta: Mapping) -> str:
     return "\n".join(parts)
 
 
+#: Where the object's thickness along the view came from (``object_shape.depth_cue_from``).
+_DEPTH_SOURCES = {
+    "gap": "the gap between the fingers in front of the object and behind it",
+    "pinch": "the aperture of a pinch across it along the view",
+}
+#: Parts of a family's score shown in the table (the rest stays in result.json).
+_SCORE_NOTES = ("edge_bonus", "depth_penalty", "depth_scaled", "relief_agreement", "tilt_deg")
+
+
+def _shape_html(meta: Mapping, sides_cm=None) -> str:
+    """The object step's choice: the family, where the thickness along the view came from, the
+    object's size, and every family's score (``meta["object_shape"]``, written by the offline
+    object step; an imported or image-to-3D mesh has none)."""
+    shape = meta.get("object_shape")
+    if not isinstance(shape, Mapping) or not shape.get("scores"):
+        return ""
+    scores = shape["scores"]
+    order = sorted(scores, key=lambda k: -float(scores[k].get("score", float("-inf"))))
+    rows = []
+    for name in order:
+        s = scores[name]
+        notes = "; ".join(f"{k.replace('_', ' ')} {fmt(s[k])}" for k in _SCORE_NOTES if s.get(k))
+        label = f"{name} (chosen)" if name == shape.get("shape") else name
+        rows.append((label, s.get("iou"), s.get("complexity"), s.get("score"), notes))
+    source = _DEPTH_SOURCES.get(shape.get("depth_cue_from"))
+    if source:
+        conf = fmt(shape.get("depth_cue_confidence"))
+        depth = f"thickness along the view from {source} (confidence {conf})"
+        if shape.get("flat_by_grip"):
+            depth += "; the grip says the object is flat"
+    else:
+        depth = (
+            "thickness along the view not measured (no grip gap or pinch on the object): it is "
+            "the chosen family's own assumption (round families as deep as wide, the fallback "
+            "0.85 of that, a slab 0.3 of its inscribed width, a box seen face-on half its "
+            "shorter side), a guess; docs/object_shape.md"
+        )
+    facts = [f"chosen: {shape.get('shape')}", depth]
+    if shape.get("tilt_deg"):
+        facts.append(f"tilted out of the image by {fmt(shape['tilt_deg'])} degrees (keypoints)")
+    if sides_cm is not None:
+        facts.append(
+            "size (along its principal axes): "
+            + " x ".join(f"{float(v):.1f}" for v in sides_cm)
+            + " cm"
+        )
+    parts = ["<h2>Object shape</h2>"] + [f"<p>{html.escape(f)}</p>" for f in facts]
+    parts.append(_table(rows, ("family", "fit IoU", "complexity", "score", "parts of the score")))
+    return "\n".join(parts)
+
+
+def _object_sides_cm(result) -> np.ndarray | None:
+    """The metric object's extents along its principal axes in cm, longest first (None for a
+    mesh with no extent)."""
+    v = np.asarray(result.object_mesh.vertices, np.float64) * float(result.metric_scale)
+    if len(v) < 4 or not np.isfinite(v).all():
+        return None
+    c = v - v.mean(axis=0)
+    _, axes = np.linalg.eigh(c.T @ c)
+    return np.sort(np.ptp(c @ axes, axis=0) * 100.0)[::-1]
+
+
 def _table(rows, header=("name", "value")) -> str:
     if not rows:
         return "<p><em>none recorded</em></p>"
@@ -300,6 +362,7 @@ def report_html(
         _table(timing_rows, ("step", "seconds")),
         "</div></div>",
         _perception_html(result.meta),
+        _shape_html(result.meta, _object_sides_cm(result)),
         "<h2>Stages</h2>",
         _table(stage_rows, ("stage", "iterations", "seconds", "stop reason", "final total loss")),
         '<div class="tables"><div><h2>Hand parameters</h2>',
