@@ -226,6 +226,15 @@ def test_metrics_table_formats_units_and_missing_values():
         "| object mask IoU (fit to its own mask, not accuracy) | 0.833 |",
         "| penetration depth | n/a |", "| contact distance | n/a |", "| run time | 61.2 s |",
     ]  # fmt: skip
+    shape = {"shape": "slab", "depth_cue_from": "pinch"}
+    text = metrics_markdown({"plausibility": {}, "object_shape": shape, "seconds": 2.0})
+    assert text.splitlines()[2:] == [
+        "| object shape | slab; thickness along the view from a pinch |", "| run time | 2.0 s |",
+    ]  # fmt: skip
+    shape = {"shape": "inflation", "depth_cue_from": None}
+    assert "| object shape | inflation; thickness along the view not measured" in metrics_markdown(
+        {"plausibility": {}, "object_shape": shape}
+    )
 
 
 # ----------------------------------------------------------------------------------------------

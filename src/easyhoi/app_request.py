@@ -202,6 +202,9 @@ def metrics_markdown(metrics: dict) -> str:
             text += " (fit to its own mask, not accuracy)"
         shown = _fmt(value)
         rows.append(f"| {text} | {shown}{' ' + unit if unit and shown != 'n/a' else ''} |")
+    shape = metrics.get("object_shape")
+    if shape:
+        rows.append(f"| object shape | {_shape_line(shape)} |")
     for key in ("preset", "seed", "seconds"):
         if key in metrics:
             value = metrics[key]
@@ -210,17 +213,30 @@ def metrics_markdown(metrics: dict) -> str:
     return "\n".join(rows)
 
 
+def _shape_line(shape: dict) -> str:
+    """The object step's choice in a few words: the family and where its thickness along the
+    view came from (``meta.object_shape`` of a result; docs/object_shape.md)."""
+    source = {"gap": "from the grip", "pinch": "from a pinch"}.get(shape.get("depth_cue_from"))
+    depth = source or "not measured (the family's assumption, a guess)"
+    return f"{shape.get('shape', 'n/a')}; thickness along the view {depth}"
+
+
 def _read_metrics(result_json: Path | None, rec) -> dict:
     plaus: dict = {}
+    shape = None
     if result_json is not None:
         try:
             data = json.loads(result_json.read_text(encoding="utf-8"))
             plaus = dict(data.get("plausibility") or {})
+            shape = (data.get("meta") or {}).get("object_shape")
         except (OSError, ValueError) as exc:
             logger.warning("cannot read %s: %s", result_json, exc)
     if not plaus:
         plaus = dict(getattr(getattr(rec, "result", None), "plausibility", None) or {})
-    return {"plausibility": plaus}
+    out = {"plausibility": plaus}
+    if isinstance(shape, dict) and shape.get("shape"):
+        out["object_shape"] = shape
+    return out
 
 
 def _perception_warnings(result_json: Path | None, prompted: bool) -> tuple[str, ...]:
