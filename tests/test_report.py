@@ -184,7 +184,7 @@ def test_object_shape_section_says_where_the_thickness_came_from():
     # every family, best score first, the winner marked, the score's parts named
     rows = re.findall(r"<tr><td>([^<]+)</td>", section)
     assert rows == ["slab (chosen)", "inflation", "cuboid"]
-    assert "depth scaled 0.3" in section and "edge bonus 0.02" in section
+    assert "depth scaled by 0.3" in section and "edge bonus 0.02" in section
     # no grip cue: the thickness is said to be the family's assumption
     meta["object_shape"].update(depth_cue_from=None, flat_by_grip=False)
     assert "not measured" in report_mod._shape_html(meta)

@@ -115,8 +115,15 @@ _DEPTH_SOURCES = {
     "gap": "the gap between the fingers in front of the object and behind it",
     "pinch": "the aperture of a pinch across it along the view",
 }
-#: Parts of a family's score shown in the table (the rest stays in result.json).
-_SCORE_NOTES = ("edge_bonus", "depth_penalty", "depth_scaled", "relief_agreement", "tilt_deg")
+#: Parts of a family's score shown in the table, with their labels (the rest stays in
+#: result.json); a surface of revolution's own tilt comes from the rim of its end.
+_SCORE_NOTES = {
+    "edge_bonus": "edge bonus",
+    "depth_penalty": "depth penalty",
+    "depth_scaled": "depth scaled by",
+    "relief_agreement": "relief agreement",
+    "tilt_deg": "tilted by its rim (deg)",
+}
 
 
 def _shape_html(meta: Mapping, sides_cm=None) -> str:
@@ -131,7 +138,7 @@ def _shape_html(meta: Mapping, sides_cm=None) -> str:
     rows = []
     for name in order:
         s = scores[name]
-        notes = "; ".join(f"{k.replace('_', ' ')} {fmt(s[k])}" for k in _SCORE_NOTES if s.get(k))
+        notes = "; ".join(f"{label} {fmt(s[k])}" for k, label in _SCORE_NOTES.items() if s.get(k))
         label = f"{name} (chosen)" if name == shape.get("shape") else name
         rows.append((label, s.get("iou"), s.get("complexity"), s.get("score"), notes))
     source = _DEPTH_SOURCES.get(shape.get("depth_cue_from"))
