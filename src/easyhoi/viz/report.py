@@ -148,10 +148,15 @@ def _shape_html(meta: Mapping, sides_cm=None) -> str:
         if shape.get("flat_by_grip"):
             depth += "; the grip says the object is flat"
     else:
+        # the priors' values from the families themselves (imported here: the pipeline that
+        # wrote the record has them loaded already)
+        from easyhoi.perception.shapes import cuboid, inflation, slab
+
         depth = (
             "thickness along the view not measured (no grip gap or pinch on the object): it is "
             "the chosen family's own assumption (round families as deep as wide, the fallback "
-            "0.85 of that, a slab 0.3 of its inscribed width, a box seen face-on half its "
+            f"{fmt(inflation.DEPTH_RATIO)} of that, a slab {fmt(slab.PRIOR_THICKNESS_RATIO)} of "
+            f"its inscribed width, a box seen face-on {fmt(cuboid.PRIOR_DEPTH_RATIO)} of its "
             "shorter side), a guess; docs/object_shape.md"
         )
     facts = [f"chosen: {shape.get('shape')}", depth]
