@@ -88,6 +88,11 @@ def _silhouette(x: np.ndarray, shape) -> np.ndarray:
     return out
 
 
+def _hull(x: np.ndarray) -> np.ndarray:
+    """(n, 2) float32 vertices of the convex hull of the projected corners, in order."""
+    return cv2.convexHull(_corners(x)[:, :2].astype(np.float32)).reshape(-1, 2)
+
+
 def _hull_pixels(x: np.ndarray, shape) -> tuple[slice, slice, np.ndarray] | None:
     """The hull's pixel-centre bounding box (rows, cols) and which of its pixels are inside.
 
@@ -96,8 +101,7 @@ def _hull_pixels(x: np.ndarray, shape) -> tuple[slice, slice, np.ndarray] | None
     as a column term minus a row term broadcast over the box (the same floating-point operations
     per pixel as on full coordinate grids).
     """
-    hull = cv2.convexHull(_corners(x)[:, :2].astype(np.float32)).reshape(-1, 2)
-    hull = hull.astype(np.float64)
+    hull = _hull(x).astype(np.float64)
     (umin, vmin), (umax, vmax) = hull.min(axis=0).tolist(), hull.max(axis=0).tolist()
     r0 = max(0, math.ceil(vmin - 0.5))
     r1 = min(shape[0], math.floor(vmax - 0.5) + 1)
@@ -125,6 +129,24 @@ def _hull_pixels(x: np.ndarray, shape) -> tuple[slice, slice, np.ndarray] | None
     return slice(r0, r1), slice(c0, c1), inside
 
 
+_KERNEL: dict[str, object] = {}
+
+
+def _hull_kernel():
+    """:func:`._hull_kernel.hull_weight_sums`, or None where numba cannot be imported or the
+    kernel cannot be compiled or run on this machine (the NumPy path is used)."""
+    if "sums" not in _KERNEL:
+        try:
+            from easyhoi.perception.shapes._hull_kernel import hull_weight_sums
+
+            probe = np.zeros((1, 2), np.int64)
+            hull_weight_sums(np.array([[0, 0], [1, 0], [0, 1]], np.float32), probe, probe)
+        except Exception:  # noqa: BLE001 - numba missing or broken: the NumPy path
+            hull_weight_sums = None
+        _KERNEL["sums"] = hull_weight_sums
+    return _KERNEL["sums"]
+
+
 class _SilhouetteIoU:
     """``fit_iou(_silhouette(x, shape), wf)`` for many boxes ``x`` of one fit.
 
@@ -133,7 +155,10 @@ class _SilhouetteIoU:
     ``inter = sum(w * mask * sil)``, ``union = sum(w * mask) + sum(w * ~mask * sil)``. With
     weights that are multiples of 1/4 (those of :func:`.common.work_frame`) every partial sum
     is exact in float64, so the value equals :func:`.common.fit_iou` bit for bit whatever the
-    summation order; other weights take the plain path.
+    summation order; other weights take the plain path. The exact sums are taken by the
+    compiled :func:`._hull_kernel.hull_weight_sums` from row-wise prefix sums of the weights
+    times 4 (integers; the float64 sums are those integers over 4, exactly), or by NumPy
+    over the hull's pixels where numba is not usable.
     """
 
     def __init__(self, wf: WorkFrame):
@@ -144,10 +169,21 @@ class _SilhouetteIoU:
         self.w_in = np.where(wf.mask, w, 0.0)
         self.w_out = np.where(wf.mask, 0.0, w)
         self.mask_weight = self.w_in.sum()
+        self.kernel = _hull_kernel() if self.exact else None
+        if self.kernel is not None:
+            from easyhoi.perception.shapes._hull_kernel import row_prefix_sums
+
+            self.quarters_in = row_prefix_sums(np.round(4.0 * self.w_in).astype(np.int64))
+            self.quarters_out = row_prefix_sums(np.round(4.0 * self.w_out).astype(np.int64))
 
     def __call__(self, x: np.ndarray) -> float:
         if not self.exact:
             return fit_iou(_silhouette(x, self.wf.mask.shape), self.wf)
+        if self.kernel is not None:
+            q_in, q_out, ok = self.kernel(_hull(x), self.quarters_in, self.quarters_out)
+            if ok:  # every vertex finite
+                union = self.mask_weight + q_out / 4.0
+                return float(q_in / 4.0 / union) if union > 0 else 0.0
         hit = _hull_pixels(x, self.wf.mask.shape)
         if hit is None:
             inter, union = 0.0, self.mask_weight
