@@ -6,6 +6,7 @@ bottom) drawn 13 px wide; regions are label maps painted around it.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -184,3 +185,39 @@ def test_stored_ranker_weights_keep_the_signs_of_their_reasons():
     for k, v in ranker.RANKER_WEIGHTS.items():
         if k != "score":
             assert v * fit.SIGNS[k] >= 0.0, k
+
+
+def _plain_solidities(mask, hand) -> tuple[float, float]:
+    """Solidity and amodal solidity, each from its own hull of the mask's pixels."""
+    vv, uu = np.nonzero(mask)
+    if len(vv) < 3:
+        return 0.0, 0.0
+    hull = cv2.convexHull(np.stack([uu, vv], 1).astype(np.int32))
+    hull_area = cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True)
+    canvas = np.zeros(mask.shape, np.uint8)
+    cv2.fillConvexPoly(canvas, hull, 1)
+    area = len(vv) + float((hand & canvas.astype(bool) & ~mask).sum())
+    return float(min(1.0, len(vv) / max(1.0, hull_area))), float(
+        min(1.0, area / max(1.0, hull_area))
+    )
+
+
+def test_solidities_from_one_pixel_hull_equal_the_plain_ones():
+    """drawn_cues computes a mask's pixel hull once for both solidities: the same values as
+    each computing its own."""
+    rng = np.random.default_rng(3)
+    hand = np.zeros((70, 90), bool)
+    hand[20:50, 30:45] = True
+    for i in range(30):
+        m = np.zeros((70, 90), np.uint8)
+        for _ in range(1 + i % 4):
+            c = tuple(int(t) for t in rng.integers(5, 85, 2))
+            cv2.ellipse(m, c, tuple(int(t) for t in rng.integers(1, 20, 2)), 0, 0, 360, 1, -1)
+        m = m.astype(bool)
+        if i == 0:
+            m[:] = False
+            m[3, 4] = m[5, 6] = True  # under 3 pixels: no hull
+        hull = gc.pixel_hull(m)
+        want = _plain_solidities(m, hand)
+        assert (ho.solidity(m, hull), gc.amodal_solidity(m, hand, hull)) == want
+        assert (ho.solidity(m), gc.amodal_solidity(m, hand)) == want

@@ -235,3 +235,21 @@ def test_dev_photos_best_hypothesis_and_automatic_choice():
     assert len(best) == 38 and nothing_held == [True]
     assert np.mean(np.array(best) >= 0.5) >= 0.6
     assert np.mean(np.array(chosen) >= 0.5) >= 0.28
+
+
+def test_segment_minima_equal_scipy_minimum():
+    """Per-segment minima of several maps, pixels labelled -1 ignored, a segment without
+    pixels 0: the values of scipy.ndimage.minimum on each map."""
+    from scipy.ndimage import minimum
+
+    rng = np.random.default_rng(5)
+    for n, shape in ((1, (9, 7)), (40, (60, 80)), (300, (120, 90))):
+        labels = rng.integers(-1, n + 3, shape)
+        labels[labels >= n] = -1  # some segments get no pixel
+        values = (rng.random((5, *shape)) * 50).astype(np.float32)
+        values[:, ::7] = np.round(values[:, ::7])  # ties
+        got = pp.segment_minima(labels, values, n)
+        assert got.dtype == np.float32
+        for v, row in zip(values, got, strict=True):
+            np.testing.assert_array_equal(row, minimum(v, labels + 1, np.arange(1, n + 1)))
+        assert (got[:, np.bincount(labels[labels >= 0], minlength=n) == 0] == 0).all()

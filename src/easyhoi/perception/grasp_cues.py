@@ -162,17 +162,29 @@ def region_cues(member, table: dict) -> np.ndarray:
     return out
 
 
-def amodal_solidity(mask: np.ndarray, hand: np.ndarray) -> float:
-    """Solidity of ``mask`` with the ``hand`` pixels inside its convex hull added: the fingers
-    in front of a held object hide parts of it, and it is compact once they are counted in."""
+def pixel_hull(mask: np.ndarray) -> tuple[int, np.ndarray | None]:
+    """Number of pixels of ``mask`` and the convex hull of their (u, v) indices (None under 3
+    pixels): what :func:`amodal_solidity` and :func:`.held_object.solidity` both start from,
+    computed once when a caller needs both."""
     vv, uu = np.nonzero(mask)
     if len(vv) < 3:
+        return len(vv), None
+    return len(vv), cv2.convexHull(np.stack([uu, vv], 1).astype(np.int32))
+
+
+def amodal_solidity(
+    mask: np.ndarray, hand: np.ndarray, hull: tuple[int, np.ndarray | None] | None = None
+) -> float:
+    """Solidity of ``mask`` with the ``hand`` pixels inside its convex hull added: the fingers
+    in front of a held object hide parts of it, and it is compact once they are counted in.
+    ``hull``: :func:`pixel_hull` of ``mask``, when already computed."""
+    count, hull = pixel_hull(mask) if hull is None else hull
+    if hull is None:
         return 0.0
-    hull = cv2.convexHull(np.stack([uu, vv], 1).astype(np.int32))
     canvas = np.zeros(mask.shape, np.uint8)
     cv2.fillConvexPoly(canvas, hull, 1)
     inside = canvas.astype(bool)
-    area = len(vv) + float((hand & inside & ~mask).sum())
+    area = count + float((hand & inside & ~mask).sum())
     # the hull's area as in held_object.solidity, so that without a hand both are equal
     hull_area = cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True)
     return float(min(1.0, area / max(1.0, hull_area)))

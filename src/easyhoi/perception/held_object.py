@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from easyhoi.perception import grasp_cues as gc
-from easyhoi.perception.proposals import Proposals, membership, segment_sums
+from easyhoi.perception.proposals import Proposals, membership, segment_minima, segment_sums
 from easyhoi.perception.skin import SKIN_D2, components_at, grabcut, hand_axis, palm_length
 
 #: A finger touches a region closer than this to its last two bones, in palm lengths (a finger
@@ -179,11 +179,7 @@ def _base_stats(props: Proposals, scene: Scene) -> dict[str, np.ndarray]:
     fd = finger_distances(shape, scene.kp)
     mins = np.full((5, n), np.inf)
     if n:
-        from scipy.ndimage import minimum
-
-        idx = np.arange(1, n + 1)
-        for f in range(5):
-            mins[f] = minimum(fd[f], lab_ + 1, idx)
+        mins[:] = segment_minima(lab_, fd, n)
     stats["finger_min"] = mins
     return stats
 
@@ -278,15 +274,15 @@ def outline_contrast(mask: np.ndarray, exclude: np.ndarray, codes: np.ndarray, w
     return 1.0 - float(np.minimum(hi, ho_).sum())
 
 
-def solidity(mask: np.ndarray) -> float:
+def solidity(mask: np.ndarray, hull: tuple[int, np.ndarray | None] | None = None) -> float:
     """Area of ``mask`` / area of its convex hull (1 for a convex region). Held objects are
-    mostly compact; a region that wanders around the hand and into the background is not."""
-    vv, uu = np.nonzero(mask)
-    if len(vv) < 3:
+    mostly compact; a region that wanders around the hand and into the background is not.
+    ``hull``: :func:`.grasp_cues.pixel_hull` of ``mask``, when already computed."""
+    count, hull = gc.pixel_hull(mask) if hull is None else hull
+    if hull is None:
         return 0.0
-    hull = cv2.convexHull(np.stack([uu, vv], 1).astype(np.int32))
     return float(
-        min(1.0, len(vv) / max(1.0, cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True)))
+        min(1.0, count / max(1.0, cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True)))
     )
 
 
@@ -301,8 +297,9 @@ def drawn_cues(props: Proposals, scene: Scene, cues: np.ndarray, order) -> None:
     for i in order:
         m = props.mask(props.regions[i])
         cues[i, j] = outline_contrast(m, exclude, codes, width)
-        cues[i, k] = solidity(m)
-        cues[i, a] = gc.amodal_solidity(m, scene.hand)
+        hull = gc.pixel_hull(m)
+        cues[i, k] = solidity(m, hull)
+        cues[i, a] = gc.amodal_solidity(m, scene.hand, hull)
 
 
 def overlap(props: Proposals, a: frozenset, b: frozenset) -> float:
@@ -377,8 +374,9 @@ def mask_cues(mask: np.ndarray, scene: Scene) -> np.ndarray:
     ).astype(bool)
     width = max(3, int(0.2 * scene.palm))
     cues[CUES.index("contrast")] = outline_contrast(mask, exclude, colour_codes(scene.lab), width)
-    cues[CUES.index("solidity")] = solidity(mask)
-    cues[CUES.index("amodal")] = gc.amodal_solidity(mask, scene.hand)
+    hull = gc.pixel_hull(mask)
+    cues[CUES.index("solidity")] = solidity(mask, hull)
+    cues[CUES.index("amodal")] = gc.amodal_solidity(mask, scene.hand, hull)
     return cues
 
 
