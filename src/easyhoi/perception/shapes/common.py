@@ -148,10 +148,11 @@ def polygons_mask(polys, shape: tuple[int, int]) -> np.ndarray:
     k = SUPERSAMPLE
     out = np.zeros((shape[0] * k, shape[1] * k), np.uint8)
     groups = [polys] if isinstance(polys, np.ndarray) else _same_size_groups(polys)
+    fill, line_8 = cv2.fillConvexPoly, cv2.LINE_8  # positional: a third of each call's cost
     for group in groups:
         q = np.round((np.asarray(group) * k - 0.5) * 16).astype(np.int32)
-        for corners in q:
-            cv2.fillConvexPoly(out, corners, 1, lineType=cv2.LINE_8, shift=4)
+        for corners in list(q):
+            fill(out, corners, 1, line_8, 4)  # lineType, shift (4 fractional bits)
     count = out.reshape(shape[0], k, shape[1], k).sum(axis=(1, 3), dtype=np.int32)
     return 2 * count >= k * k
 
