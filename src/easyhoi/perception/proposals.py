@@ -87,16 +87,16 @@ def segment_sums(labels: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
 
 
 def segment_minima(labels: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """(k, n) per-segment minima of each of the (k, h, w) maps ``values`` (pixels labelled -1
-    ignored), in their dtype; 0 for a segment without pixels. The values of
-    ``scipy.ndimage.minimum(v, labels + 1, range(1, n + 1))`` (a minimum does not depend on
-    the order it is taken in), which sorts every map's values to get them."""
-    ok = labels >= 0
+    """(k, n) per-segment minima of each of the (k, h, w) maps ``values`` over the segments
+    0..n-1 (other labels, -1 included, ignored), in their dtype; 0 for a segment without
+    pixels. The values of ``scipy.ndimage.minimum(v, labels + 1, range(1, n + 1))`` (a minimum
+    does not depend on the order it is taken in), which sorts every map's values to get them."""
+    ok = (labels >= 0) & (labels < n)
     lab = labels[ok]
     out = np.full((len(values), n), np.inf, values.dtype)
     for row, v in zip(out, values, strict=True):
         np.minimum.at(row, lab, v[ok])
-    out[:, np.bincount(lab, minlength=n)[:n] == 0] = 0
+    out[:, np.bincount(lab, minlength=n) == 0] = 0
     return out
 
 
