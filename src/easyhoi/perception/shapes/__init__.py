@@ -14,10 +14,11 @@ the amodal outline in a working frame (:mod:`.common`) and scored::
 * ``complexity`` — :data:`COMPLEXITY`: families whose outline is free (slab, inflation) fit
   every outline and must not win against a family with few parameters that fits as well;
   among the parametric ones, the fewer parameters the smaller the penalty. Between the two
-  free ones the silhouette cannot choose (their IoUs differ by a few thousandths), so without
-  the grip's flat verdict (below) the slab, whose thickness is then a guess, ranks behind the
-  inflation: an outline no box fits that a grip has not shown to be thin was, wherever it was
-  measured, a rounded object with an irregular outline (a mug with its handle, a bottle, a pen).
+  free ones the silhouette rarely chooses (their IoUs mostly differ by a few thousandths), so
+  without the grip's flat verdict (below) the slab, whose thickness is then a guess, ranks
+  behind the inflation unless it fits clearly better: an outline no box fits that a grip has not
+  shown to be thin was mostly a rounded object with an irregular outline (a mug with its
+  handle, a bottle, a pen).
 * ``edge_bonus`` — straight image edges where a fitted box's faces meet
   (:func:`.cuboid.edge_evidence`): a box shows its edges, a cylinder of the same outline none.
 * ``depth_penalty`` — the hand gives the object's thickness along the view where it is gripped
@@ -63,9 +64,9 @@ from easyhoi.perception.shapes.common import (
 )
 from easyhoi.perception.shapes.hand_cues import HandCues, hand_cues
 
-#: Complexity penalty per family (see module docs). The slab's, without the grip's flat verdict,
-#: is above the inflation's by more than the two ever differ in IoU (both follow the outline):
-#: its thickness is then a guess, and it does not win on silhouette noise (module docs).
+#: Complexity penalty per family (see module docs). Without the grip's flat verdict the slab's
+#: thickness is a guess, and its penalty exceeds the inflation's by 0.04 of IoU, more than the
+#: two free-outline families differ by on most outlines (module docs).
 COMPLEXITY = {
     "revolution": 0.0,
     "superquadric": 0.005,
