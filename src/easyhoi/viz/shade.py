@@ -224,17 +224,19 @@ def render_shaded(
     colors = np.array([m.color for m in meshes], dtype=np.float64)
 
     fid, z = face_buffer(torch.from_numpy(verts), torch.from_numpy(faces), cam)
-    fid = fid.numpy()
-    hit = fid >= 0
-    if not hit.any():
+    fid = fid.numpy().reshape(-1)
+    pix = np.flatnonzero(fid >= 0)  # covered pixels, flat index row * W + col
+    if not len(pix):
         return Render(bg, labels, depth)
-    depth[hit] = z.numpy()[hit]
-    f = fid[hit]
-    labels[hit] = np.searchsorted(face_start, f, side="right") - 1
+    hit = (fid >= 0).reshape(H, W)
+    depth.reshape(-1)[pix] = z.numpy().reshape(-1)[pix]
+    f = fid[pix]
+    lab = np.searchsorted(face_start, f, side="right") - 1
+    labels.reshape(-1)[pix] = lab
     vt = torch.from_numpy(verts)
     uv = cam.project(vt)[0].numpy()
     p_cam = cam.world_to_camera(vt).numpy()
-    bary = _perspective_bary(uv, p_cam[:, 2], faces[f], np.flatnonzero(hit), W)
+    bary = _perspective_bary(uv, p_cam[:, 2], faces[f], pix, W)
     normals = np.concatenate([m.corner_normals for m in meshes])
     normals = normals @ cam.R.numpy().T  # camera frame
     n = np.einsum("pk,pkj->pj", bary, normals[f])
@@ -246,15 +248,23 @@ def render_shaded(
     for direction, weight in _LIGHTS:
         d = direction / np.linalg.norm(direction)
         light += weight * np.maximum(n @ d, 0.0)
-    shade = colors[labels[hit]] * np.minimum(light, 1.0)[:, None]
+    shade = colors[lab] * np.minimum(light, 1.0)[:, None]
     if outline:
         edge = _border(labels)[hit]
         shade[edge] *= 0.45
-    out = bg.astype(np.float64)
-    out[hit] = (1.0 - alpha) * out[hit] + alpha * shade
-    image = np.clip(np.rint(out), 0, 255).astype(np.uint8)
-    image[~hit] = bg[~hit]
-    return Render(image, labels, depth)
+    _blend(bg.reshape(-1, 3), pix, shade, alpha)
+    return Render(bg, labels, depth)
+
+
+def _blend(image: np.ndarray, pix: np.ndarray, shade: np.ndarray, alpha: float) -> None:
+    """Alpha-blend ``shade`` over the rows ``pix`` of ``image`` ((N, 3) uint8), in place.
+
+    Only the covered pixels go through float64 (a whole-picture float copy cost more than the
+    shading of a small mesh); the others keep their bytes. Each covered value is
+    ``rint((1 - alpha) * background + alpha * shade)`` clipped to 0..255.
+    """
+    under = image[pix].astype(np.float64)
+    image[pix] = np.clip(np.rint((1.0 - alpha) * under + alpha * shade), 0, 255).astype(np.uint8)
 
 
 def _perspective_bary(
