@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
-import numpy as np
+import io
 
+import numpy as np
+import pytest
+from PIL import Image
+
+from easyhoi.errors import InvalidInputError
+from easyhoi.viz.plots import png_bytes
 from easyhoi.viz.shade import _blend
 
 
@@ -20,3 +26,23 @@ def test_blend_on_covered_pixels_equals_the_whole_picture_formula():
         got = bg.copy()
         _blend(got.reshape(-1, 3), np.flatnonzero(hit), shade, alpha)
         np.testing.assert_array_equal(got, ref)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (7, 5), (7, 5, 2), (40, 31, 3), (9, 13, 4), (3, 4, 1)])
+def test_png_decodes_to_the_same_pixels(shape):
+    rng = np.random.default_rng(sum(shape))
+    a = rng.integers(0, 256, shape, dtype=np.uint8)
+    a[:, : shape[1] // 2] = 7  # flat and noisy parts
+    data = png_bytes(a)
+    im = Image.open(io.BytesIO(data))
+    im.load()
+    np.testing.assert_array_equal(np.asarray(im), a[..., 0] if shape[2:] == (1,) else a)
+    assert png_bytes(a) == data
+    assert png_bytes(np.asfortranarray(a)) == data  # memory layout does not matter
+
+
+@pytest.mark.parametrize("bad", [np.zeros((0, 4, 3), np.uint8), np.zeros((4, 4, 5), np.uint8),
+                                 np.zeros((4, 4), np.float32), np.zeros(4, np.uint8)])  # fmt: skip
+def test_png_refuses_what_it_cannot_encode(bad):
+    with pytest.raises(InvalidInputError):
+        png_bytes(bad)
