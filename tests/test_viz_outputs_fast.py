@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import io
+import math
 
 import numpy as np
 import pytest
 from PIL import Image
 
 from easyhoi.errors import InvalidInputError
+from easyhoi.viz.chart import _densify
 from easyhoi.viz.plots import png_bytes
 from easyhoi.viz.shade import _blend
 
@@ -46,3 +48,25 @@ def test_png_decodes_to_the_same_pixels(shape):
 def test_png_refuses_what_it_cannot_encode(bad):
     with pytest.raises(InvalidInputError):
         png_bytes(bad)
+
+
+def _densify_loop(x, y, step=8.0):
+    """The segment-by-segment formulation :func:`easyhoi.viz.chart._densify` replaces."""
+    pts = [np.stack([x[:1], y[:1]], axis=1)]
+    for a, b, c, d in zip(x[:-1], y[:-1], x[1:], y[1:], strict=True):
+        n = max(1, int(math.hypot(c - a, d - b) / step))
+        t = np.arange(1, n + 1) / n
+        pts.append(np.stack([a + t * (c - a), b + t * (d - b)], axis=1))
+    return np.concatenate(pts)
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 3, 50, 400])
+def test_densify_equals_the_segment_loop(n):
+    rng = np.random.default_rng(n)
+    x = np.sort(rng.uniform(100, 900, n))
+    y = rng.uniform(30, 600, n)
+    if n > 3:
+        x[2], y[2] = x[1], y[1]  # a zero-length segment
+        x[3] = x[2] + 8.0  # exactly one step long
+        y[3] = y[2]
+    np.testing.assert_array_equal(_densify(x, y, 8.0), _densify_loop(x, y, 8.0))
