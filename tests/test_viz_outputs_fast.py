@@ -5,12 +5,15 @@ from __future__ import annotations
 import io
 import math
 
+import cv2
 import numpy as np
 import pytest
 from PIL import Image
 
 from easyhoi.errors import InvalidInputError
+from easyhoi.viz import masks
 from easyhoi.viz.chart import _densify
+from easyhoi.viz.compose import fit_width
 from easyhoi.viz.plots import png_bytes
 from easyhoi.viz.shade import _blend
 
@@ -70,3 +73,26 @@ def test_densify_equals_the_segment_loop(n):
         x[3] = x[2] + 8.0  # exactly one step long
         y[3] = y[2]
     np.testing.assert_array_equal(_densify(x, y, 8.0), _densify_loop(x, y, 8.0))
+
+
+@pytest.mark.parametrize("size", [(974, 650, 320), (350, 350, 320), (451, 601, 360), (20, 30, 30)])
+def test_fit_width_of_a_mask_equals_scaling_its_three_channels(size):
+    h, w, width = size
+    rng = np.random.default_rng(h)
+    mask = rng.random((h, w)) < 0.3
+    mask[h // 4 : h // 2, w // 3 : w // 2] = True
+    rgb = np.repeat((mask.astype(np.uint8) * 255)[..., None], 3, axis=2)  # the old order
+    if w > width:
+        rgb = cv2.resize(rgb, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
+    np.testing.assert_array_equal(fit_width(mask, width), rgb)
+
+
+def test_mask_comparison_colours_equal_the_masked_assignments():
+    rng = np.random.default_rng(3)
+    a, b = rng.random((2, 41, 29)) < 0.5
+    ref = np.empty(a.shape + (3,), np.uint8)
+    ref[:] = masks._NONE
+    ref[a & b] = masks._BOTH
+    ref[a & ~b] = masks._INPUT_ONLY
+    ref[~a & b] = masks._RENDER_ONLY
+    np.testing.assert_array_equal(masks._compare(a, b), ref)
