@@ -8,10 +8,11 @@ import math
 import cv2
 import numpy as np
 import pytest
+import trimesh
 from PIL import Image
 
 from easyhoi.errors import InvalidInputError
-from easyhoi.viz import masks
+from easyhoi.viz import masks, shade
 from easyhoi.viz.chart import _densify
 from easyhoi.viz.compose import fit_width
 from easyhoi.viz.plots import png_bytes
@@ -96,3 +97,29 @@ def test_mask_comparison_colours_equal_the_masked_assignments():
     ref[a & ~b] = masks._INPUT_ONLY
     ref[~a & b] = masks._RENDER_ONLY
     np.testing.assert_array_equal(masks._compare(a, b), ref)
+
+
+def _meshes():
+    box = trimesh.creation.box(extents=(1.0, 2.0, 0.5))
+    sphere = trimesh.creation.icosphere(3)
+    rng = np.random.default_rng(5)
+    v = rng.normal(size=(60, 3))
+    f = rng.integers(0, 60, (150, 3))
+    f[:5, 1] = f[:5, 0]  # repeated corners: degenerate faces
+    v[f[5, 1]] = v[f[5, 0]]  # a zero-area face
+    return [(box.vertices, box.faces), (sphere.vertices, sphere.faces), (v, f)]
+
+
+@pytest.mark.parametrize("k", range(3))
+def test_compiled_corner_sums_equal_the_numpy_pairs(k):
+    pytest.importorskip("numba")
+    from easyhoi.viz._normals_kernel import corner_sums
+
+    v, f = (np.asarray(a) for a in _meshes()[k])
+    f = f.astype(np.int64)
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    unit = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-30)
+    for crease in (0.0, 40.0, 89.0):
+        c = float(np.cos(np.radians(crease)))
+        ref = shade._pair_sums(f, len(v), cross, unit, c)
+        np.testing.assert_array_equal(corner_sums(f, len(v), cross, unit, c), ref)
