@@ -170,13 +170,21 @@ def log_chart(
 
 
 def _densify(x: np.ndarray, y: np.ndarray, step: float = 4.0 * _SS) -> np.ndarray:
-    """(N, 2) points along the polyline through ``(x, y)``, at most ``step`` pixels apart."""
-    pts = [np.stack([x[:1], y[:1]], axis=1)]
-    for a, b, c, d in zip(x[:-1], y[:-1], x[1:], y[1:], strict=True):
-        n = max(1, int(math.hypot(c - a, d - b) / step))
-        t = np.arange(1, n + 1) / n
-        pts.append(np.stack([a + t * (c - a), b + t * (d - b)], axis=1))
-    return np.concatenate(pts)
+    """(N, 2) points along the polyline through ``(x, y)``, at most ``step`` pixels apart.
+
+    A segment of length ``L`` gets ``n = max(1, int(L / step))`` points at ``t = k / n``,
+    ``k = 1..n``, after the first point; all segments' points in one array operation.
+    """
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    dx, dy = x[1:] - x[:-1], y[1:] - y[:-1]
+    lengths = map(math.hypot, dx.tolist(), dy.tolist())  # the same float as hypot of scalars
+    n = np.array([max(1, int(d / step)) for d in lengths], np.int64)
+    seg = np.repeat(np.arange(len(n)), n)
+    k = np.arange(1, len(seg) + 1) - np.repeat(np.cumsum(n) - n, n)  # 1..n in each segment
+    t = k / n[seg]
+    px = np.concatenate([x[:1], x[:-1][seg] + t * dx[seg]])
+    py = np.concatenate([y[:1], y[:-1][seg] + t * dy[seg]])
+    return np.stack([px, py], axis=1)
 
 
 def _legend(draw, items: Sequence[tuple[str, tuple, int]], box, points: np.ndarray) -> None:

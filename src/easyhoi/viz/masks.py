@@ -80,13 +80,14 @@ def mask_ious(result: HOIResult, inp: HOIInput) -> dict[str, float]:
     return {r: mask_iou(getattr(inp, i), rendered[r]) for i, r, _ in MASK_PAIRS}
 
 
+#: Colour of each comparison code ``2 * input + rendered``.
+_PALETTE = np.array([_NONE, _RENDER_ONLY, _INPUT_ONLY, _BOTH], np.uint8)
+
+
 def _compare(input_mask: np.ndarray, rendered: np.ndarray) -> np.ndarray:
-    out = np.empty(input_mask.shape + (3,), np.uint8)
-    out[:] = _NONE
-    out[input_mask & rendered] = _BOTH
-    out[input_mask & ~rendered] = _INPUT_ONLY
-    out[~input_mask & rendered] = _RENDER_ONLY
-    return out
+    """(H, W, 3) uint8: both, input only, rendered only or neither, in their colours."""
+    code = np.left_shift(input_mask, 1, dtype=np.uint8) | rendered
+    return _PALETTE[code]
 
 
 def masks_png(result: HOIResult, inp: HOIInput, full_size: bool = False) -> bytes:
@@ -102,9 +103,10 @@ def masks_png(result: HOIResult, inp: HOIInput, full_size: bool = False) -> byte
         raise InvalidInputError(f"expected an HOIInput, got {type(inp).__name__}")
     H, W = inp.size
     rendered = rendered_masks(result, H, W)
-    panels = [Panel(inp.image, "input photo")]
+    small = shrink_photo(inp.image, PANEL_WIDTH)  # the photo panel, as compose_grid shows it
+    panels = [Panel(small, "input photo")]
     panels += [Panel(getattr(inp, i), f"input {label}") for i, _, label in MASK_PAIRS]
-    photo = shrink_photo(inp.image, None if full_size else PANEL_WIDTH)
+    photo = inp.image if full_size else small
     panels.append(Panel(render_overlay(result, photo).image, "reconstruction overlay"))
     for i, r, label in MASK_PAIRS:
         iou = mask_iou(getattr(inp, i), rendered[r])

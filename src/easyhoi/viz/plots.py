@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import io
-
 import numpy as np
 
 from easyhoi.errors import InvalidInputError
@@ -26,15 +24,10 @@ PNG_COMPRESS_LEVEL = 1
 
 
 def png_bytes(image: np.ndarray) -> bytes:
-    """PNG encoding of an (H, W, 3) or (H, W) uint8 array."""
-    from PIL import Image
+    """PNG encoding of an (H, W, 3) or (H, W) uint8 array (:func:`easyhoi.viz.png.encode_png`)."""
+    from easyhoi.viz.png import encode_png
 
-    a = np.asarray(image)
-    if a.dtype != np.uint8 or a.ndim not in (2, 3):
-        raise InvalidInputError(f"expected a uint8 image, got {a.shape} {a.dtype}")
-    buf = io.BytesIO()
-    Image.fromarray(a).save(buf, format="PNG", optimize=False, compress_level=PNG_COMPRESS_LEVEL)
-    return buf.getvalue()
+    return encode_png(image, PNG_COMPRESS_LEVEL)
 
 
 def new_figure(width_in: float, height_in: float):

@@ -149,25 +149,47 @@ def corner_normals(vertices: np.ndarray, faces: np.ndarray, crease_deg: float = 
     cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # |cross| = 2 * area
     length = np.linalg.norm(cross, axis=1, keepdims=True)
     unit = cross / np.maximum(length, 1e-30)
-    # incidence: for every corner (face g, slot k), the faces around its vertex
+    cos_crease = float(np.cos(np.radians(crease_deg)))
+    acc = _compiled_sums(f, len(v), cross, unit, cos_crease)
+    if acc is None:
+        acc = _pair_sums(f, len(v), cross, unit, cos_crease)
+    n = np.linalg.norm(acc, axis=1, keepdims=True)
+    out = np.where(n > 1e-30, acc / np.maximum(n, 1e-30), np.repeat(unit, 3, axis=0))
+    return out.reshape(len(f), 3, 3)
+
+
+def _pair_sums(f, n_vertices, cross, unit, cos_crease) -> np.ndarray:
+    """(3F, 3): per corner, the summed ``cross`` of the faces around its vertex within the
+    crease angle, from (corner, neighbour face) pairs in NumPy (the path without numba)."""
     corner_vertex = f.reshape(-1)
     corner_face = np.repeat(np.arange(len(f)), 3)
     order = np.argsort(corner_vertex, kind="stable")
     sorted_v = corner_vertex[order]
-    starts = np.searchsorted(sorted_v, np.arange(len(v)))
-    counts = np.bincount(corner_vertex, minlength=len(v))
+    starts = np.searchsorted(sorted_v, np.arange(n_vertices))
+    counts = np.bincount(corner_vertex, minlength=n_vertices)
     # pairs (corner c, neighbour face n) for all neighbours of c's vertex
     deg = counts[corner_vertex]
     pair_corner = np.repeat(np.arange(len(corner_vertex)), deg)
     offset = np.arange(len(pair_corner)) - np.repeat(np.cumsum(deg) - deg, deg)
     pair_face = corner_face[order[starts[corner_vertex[pair_corner]] + offset]]
     own = unit[corner_face[pair_corner]]
-    keep = (own * unit[pair_face]).sum(1) >= np.cos(np.radians(crease_deg))
+    keep = (own * unit[pair_face]).sum(1) >= cos_crease
     corner, w = pair_corner[keep], cross[pair_face[keep]]
-    acc = np.stack([np.bincount(corner, w[:, j], len(corner_vertex)) for j in range(3)], axis=1)
-    n = np.linalg.norm(acc, axis=1, keepdims=True)
-    out = np.where(n > 1e-30, acc / np.maximum(n, 1e-30), unit[corner_face])
-    return out.reshape(len(f), 3, 3)
+    return np.stack([np.bincount(corner, w[:, j], len(corner_vertex)) for j in range(3)], axis=1)
+
+
+def _compiled_sums(f, n_vertices, cross, unit, cos_crease) -> np.ndarray | None:
+    """:func:`_pair_sums` by the compiled kernel (the same sums); None without numba."""
+    from easyhoi.render import get_backend
+
+    if get_backend() != "numba" or not len(f):
+        return None
+    try:
+        from easyhoi.viz._normals_kernel import corner_sums
+
+        return corner_sums(f, n_vertices, cross, unit, cos_crease)
+    except Exception:  # noqa: BLE001 - numba missing or failing: the NumPy path
+        return None
 
 
 def _as_background(background, camera: Camera) -> np.ndarray:
@@ -224,17 +246,19 @@ def render_shaded(
     colors = np.array([m.color for m in meshes], dtype=np.float64)
 
     fid, z = face_buffer(torch.from_numpy(verts), torch.from_numpy(faces), cam)
-    fid = fid.numpy()
-    hit = fid >= 0
-    if not hit.any():
+    fid = fid.numpy().reshape(-1)
+    pix = np.flatnonzero(fid >= 0)  # covered pixels, flat index row * W + col
+    if not len(pix):
         return Render(bg, labels, depth)
-    depth[hit] = z.numpy()[hit]
-    f = fid[hit]
-    labels[hit] = np.searchsorted(face_start, f, side="right") - 1
+    hit = (fid >= 0).reshape(H, W)
+    depth.reshape(-1)[pix] = z.numpy().reshape(-1)[pix]
+    f = fid[pix]
+    lab = np.searchsorted(face_start, f, side="right") - 1
+    labels.reshape(-1)[pix] = lab
     vt = torch.from_numpy(verts)
     uv = cam.project(vt)[0].numpy()
     p_cam = cam.world_to_camera(vt).numpy()
-    bary = _perspective_bary(uv, p_cam[:, 2], faces[f], np.flatnonzero(hit), W)
+    bary = _perspective_bary(uv, p_cam[:, 2], faces[f], pix, W)
     normals = np.concatenate([m.corner_normals for m in meshes])
     normals = normals @ cam.R.numpy().T  # camera frame
     n = np.einsum("pk,pkj->pj", bary, normals[f])
@@ -246,15 +270,23 @@ def render_shaded(
     for direction, weight in _LIGHTS:
         d = direction / np.linalg.norm(direction)
         light += weight * np.maximum(n @ d, 0.0)
-    shade = colors[labels[hit]] * np.minimum(light, 1.0)[:, None]
+    shade = colors[lab] * np.minimum(light, 1.0)[:, None]
     if outline:
         edge = _border(labels)[hit]
         shade[edge] *= 0.45
-    out = bg.astype(np.float64)
-    out[hit] = (1.0 - alpha) * out[hit] + alpha * shade
-    image = np.clip(np.rint(out), 0, 255).astype(np.uint8)
-    image[~hit] = bg[~hit]
-    return Render(image, labels, depth)
+    _blend(bg.reshape(-1, 3), pix, shade, alpha)
+    return Render(bg, labels, depth)
+
+
+def _blend(image: np.ndarray, pix: np.ndarray, shade: np.ndarray, alpha: float) -> None:
+    """Alpha-blend ``shade`` over the rows ``pix`` of ``image`` ((N, 3) uint8), in place.
+
+    Only the covered pixels go through float64 (a whole-picture float copy cost more than the
+    shading of a small mesh); the others keep their bytes. Each covered value is
+    ``rint((1 - alpha) * background + alpha * shade)`` clipped to 0..255.
+    """
+    under = image[pix].astype(np.float64)
+    image[pix] = np.clip(np.rint((1.0 - alpha) * under + alpha * shade), 0, 255).astype(np.uint8)
 
 
 def _perspective_bary(
