@@ -421,3 +421,20 @@ def test_revolution_recovers_the_tilt_of_a_can_from_its_rim(tilt):
     # without an image there is no rim evidence: the axis stays in the image plane
     plain = revolution.fit(common.work_frame(m))
     assert plain.info["tilt_deg"] == 0.0
+
+
+def test_without_a_flat_grip_the_slab_ranks_behind_the_inflation():
+    """A body with a thin handle and no grip: the slab follows the outline a little better than
+    the inflation (IoU 0.99 against 0.96), but its thickness is a guess, so its complexity is
+    0.04 above the inflation's and the inflation wins."""
+    from easyhoi.perception.shapes import COMPLEXITY, fit_shape
+
+    m = np.zeros((240, 300), np.uint8)
+    cv2.rectangle(m, (60, 50), (180, 200), 1, -1)
+    cv2.ellipse(m, (180, 125), (55, 50), 0, -90, 90, 1, 4)
+    _, _, info = fit_shape(m.astype(bool), families=("slab", "inflation"))
+    sc = info["scores"]
+    assert sc["slab"]["iou"] > sc["inflation"]["iou"] + 0.02
+    assert not info["flat_by_grip"] and info["shape"] == "inflation"
+    assert sc["slab"]["complexity"] == COMPLEXITY["slab"]
+    assert COMPLEXITY["slab"] - COMPLEXITY["inflation"] == pytest.approx(0.04)
