@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from easyhoi.perception.shapes import common, cuboid
+from tests.test_shapes_cuboid_silhouette import _frames
 
 pytest.importorskip("numba")
 from easyhoi.perception.shapes import _hull_kernel  # noqa: E402
@@ -113,25 +114,6 @@ def test_kernel_declines_non_finite_hulls():
     q = _hull_kernel.row_prefix_sums(np.ones((4, 4), np.int64))
     hull = np.array([[0, 0], [np.inf, 0], [0, 2]], np.float32)
     assert _hull_kernel.hull_weight_sums(hull, q, q) == (0, 0, False)
-
-
-def _frames() -> list[common.WorkFrame]:
-    """Work frames of a hexagonal box outline behind a hand, an ellipse and a thin bar."""
-    frames = []
-    for i, (a, b, ang) in enumerate([(70, 40, 30), (55, 52, 0), (90, 9, -65)]):
-        m = np.zeros((200, 220), np.uint8)
-        cv2.ellipse(m, (110, 100), (a, b), ang, 0, 360, 1, -1)
-        if i == 0:
-            m[:] = 0
-            x = np.array([110.0, 100.0, 0.5, -0.4, 0.3, np.log(50), np.log(30), np.log(18)])
-            hull = cv2.convexHull(np.round(cuboid._corners(x)[:, :2]).astype(np.int32))
-            cv2.fillConvexPoly(m, hull, 1)
-        m = m.astype(bool)
-        occ = np.zeros_like(m)
-        occ[90:150, 40:190] = True
-        img = np.random.default_rng(i).integers(0, 255, (*m.shape, 3), dtype=np.uint8)
-        frames.append(common.work_frame(m, m & ~occ, occ, img))
-    return frames
 
 
 def _plain_objective(x: np.ndarray, wf: common.WorkFrame) -> float:
