@@ -250,7 +250,6 @@ def render_shaded(
     pix = np.flatnonzero(fid >= 0)  # covered pixels, flat index row * W + col
     if not len(pix):
         return Render(bg, labels, depth)
-    hit = (fid >= 0).reshape(H, W)
     depth.reshape(-1)[pix] = z.numpy().reshape(-1)[pix]
     f = fid[pix]
     lab = np.searchsorted(face_start, f, side="right") - 1
@@ -272,7 +271,7 @@ def render_shaded(
         light += weight * np.maximum(n @ d, 0.0)
     shade = colors[lab] * np.minimum(light, 1.0)[:, None]
     if outline:
-        edge = _border(labels)[hit]
+        edge = _border(labels).reshape(-1)[pix]
         shade[edge] *= 0.45
     _blend(bg.reshape(-1, 3), pix, shade, alpha)
     return Render(bg, labels, depth)
