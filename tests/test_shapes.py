@@ -73,6 +73,20 @@ def test_cuboid_recovers_a_box_and_its_depth():
     assert md["shape"]["scores"]["cuboid"]["edge_evidence"] > 0.3
 
 
+def test_cuboid_edge_evidence_is_a_change_across_the_whole_edge():
+    """The box's faces lit alike, with curved dark rims drawn over it (as a mug's rim and handle
+    cross where a box's edges would be): the gradient they add crosses the fitted box's internal
+    edges at a few points and is no evidence of a box; the faces lit differently are."""
+    m, shaded = box_scene()
+    rims = np.full(shaded.shape, 90, np.uint8)
+    rims[m] = 150
+    for k, (cx, cy) in enumerate([(100, 90), (150, 130), (125, 110)]):
+        cv2.ellipse(rims, (cx, cy), (40 + 10 * k, 25), 20 * k, 0, 360, (60, 60, 60), 2)
+    rims[~m] = 90
+    assert cuboid.fit(common.work_frame(m, image=shaded)).info["edge_evidence"] == 1.0
+    assert cuboid.fit(common.work_frame(m, image=rims)).info["edge_evidence"] == 0.0
+
+
 def test_superquadric_recovers_a_rounded_square_outline():
     m = np.zeros((220, 260), bool)
     v, u = np.mgrid[0:220, 0:260] + 0.5
