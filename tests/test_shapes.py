@@ -73,7 +73,7 @@ def test_cuboid_recovers_a_box_and_its_depth():
     assert md["shape"]["scores"]["cuboid"]["edge_evidence"] > 0.3
 
 
-def test_cuboid_edge_evidence_is_a_change_across_the_whole_edge():
+def test_cuboid_edge_evidence_is_a_change_along_the_whole_edge():
     """The box's faces lit alike, with curved dark rims drawn over it (as a mug's rim and handle
     cross where a box's edges would be): the gradient they add crosses the fitted box's internal
     edges at a few points and is no evidence of a box; the faces lit differently are."""
