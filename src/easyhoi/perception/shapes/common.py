@@ -178,6 +178,29 @@ def fit_iou(sil: np.ndarray, wf: WorkFrame) -> float:
     return float(inter / union) if union > 0 else 0.0
 
 
+def inside_distance(mask: np.ndarray) -> np.ndarray:
+    """(H, W) float Euclidean distance of every pixel to the nearest pixel outside ``mask``
+    (0 outside), as ``ndimage.distance_transform_edt(mask)``, computed over the mask's bounding
+    box grown by one pixel (within the image) only.
+
+    The same numbers: the ring of pixels around the box is outside the mask, and a pixel outside
+    the grown box, clamped onto it, lands on that ring no farther from any pixel inside the box
+    (clamping to a box that holds a point shortens every coordinate difference), so the nearest
+    outside pixel of every pixel in the box lies within the grown box. Where the box meets the
+    image's edge there is no ring and nothing beyond it; like scipy, the image's edge is not
+    taken as outside.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    out = np.zeros(mask.shape, dtype=np.float64)
+    rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+    if not len(rows):
+        return out
+    r0, r1 = max(rows[0] - 1, 0), min(rows[-1] + 2, mask.shape[0])
+    c0, c1 = max(cols[0] - 1, 0), min(cols[-1] + 2, mask.shape[1])
+    out[r0:r1, c0:c1] = ndimage.distance_transform_edt(mask[r0:r1, c0:c1])
+    return out
+
+
 def signed_distance_2d(mask: np.ndarray) -> np.ndarray:
     """(H, W) float signed distance (pixels) to the mask's contour, positive inside.
 

@@ -143,10 +143,10 @@ def hand_cues(keypoints2d, keypoints3d, object_mask=None, hand_mask=None) -> Han
     z = k3[:, 2] - k3[:, 2].mean()
     front, behind = [], []
     if object_mask is not None and hand_mask is not None and object_mask.any():
-        from scipy import ndimage
+        from easyhoi.perception.shapes.common import inside_distance
 
         H, W = object_mask.shape
-        dist = ndimage.distance_transform_edt(object_mask)
+        dist = inside_distance(object_mask)
         inner = INTERIOR_FRACTION * float(dist.max())
         for i, (u, v) in enumerate(k2):
             r, c = int(np.floor(v)), int(np.floor(u))
