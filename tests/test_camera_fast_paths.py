@@ -165,3 +165,32 @@ def test_camera_stage_parameters_give_the_validated_camera():
     cam.project(torch.tensor([[0.0, 0.1, 0.5]], dtype=torch.float64))[0].sum().backward()
     assert all(p.grad is not None and torch.isfinite(p.grad).all() for p in params.tensors())
     assert params.delta.grad.abs().sum() > 0
+
+
+def test_project_without_near_zero_depths_equals_the_selection_with_gradients():
+    from easyhoi.structures import Camera
+
+    torch.manual_seed(0)
+    K = torch.tensor([[300.0, 2.0, 64.0], [0.0, 310.0, 60.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    cam = Camera(
+        K,
+        torch.eye(3, dtype=torch.float64),
+        torch.tensor([0.0, 0.0, 0.5], dtype=torch.float64),
+        128,
+        120,
+    )
+    pts = (torch.randn(50, 3, dtype=torch.float64) * 0.1).requires_grad_(True)
+    uv, z = cam.project(pts)
+    pc = pts @ cam.R.T + cam.t
+    x, y, zz = pc.unbind(-1)
+    zs = torch.where(zz.abs() < 1e-9, 1e-9, zz)
+    ref = torch.stack([300.0 * x / zs + 2.0 * y / zs + 64.0, 310.0 * y / zs + 60.0], dim=-1)
+    assert torch.equal(uv, ref) and torch.equal(z, zz)
+    w = torch.randn_like(uv)
+    (g,) = torch.autograd.grad((uv * w).sum(), pts)
+    (g_ref,) = torch.autograd.grad((ref * w).sum(), pts)
+    assert torch.equal(g, g_ref)
+    # a point at the camera's depth plane still gets the floor
+    at_plane = torch.tensor([[0.01, 0.02, -0.5]], dtype=torch.float64)
+    uv0, _ = cam.project(at_plane)
+    assert torch.isfinite(uv0).all()
