@@ -14,6 +14,7 @@ from easyhoi.optim.camera import (
     candidate_rotations,
     fit_box,
     fit_camera,
+    hull_vertex_ids,
     initial_camera,
 )
 from easyhoi.optim.losses import sinkhorn_mask_loss
@@ -104,6 +105,30 @@ def test_fit_box_matches_box():
     np.testing.assert_allclose(0.5 * (got[:2] + got[2:]), 0.5 * (box[:2] + box[2:]), atol=0.1)
     area = np.prod(got[2:] - got[:2])
     assert abs(area / np.prod(box[2:] - box[:2]) - 1.0) < 0.01
+
+
+def test_fit_box_on_the_hull_points_equals_all_points():
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(1)
+    meshes = [trimesh.creation.box((1.0, 2.0, 3.0)), trimesh.creation.icosphere(3),
+              trimesh.creation.cylinder(1.0, 3.0, sections=48)]  # fmt: skip
+    blob = rng.normal(size=(400, 3)) * [1.0, 0.5, 0.3]  # most points inside the hull
+    clouds = [np.asarray(m.vertices) for m in meshes] + [blob]
+    rotations = [R for _, R in candidate_rotations("cube")]
+    rotations += list(Rotation.random(6, random_state=2).as_matrix())
+    for v in clouds:
+        ids = hull_vertex_ids(v)
+        assert ids is not None and len(ids) <= len(v)
+        c = 0.5 * (v.min(axis=0) + v.max(axis=0))
+        for R in rotations:
+            box = np.array([100.0, 80.0, 100 + rng.uniform(20, 200), 80 + rng.uniform(20, 200)])
+            full = fit_box(v, R, 500.0, (320.0, 240.0), box, c)
+            assert np.array_equal(fit_box(v, R, 500.0, (320.0, 240.0), box, c, ids), full)
+    assert len(hull_vertex_ids(blob)) < len(blob) // 4
+    # a point cloud without volume has no hull: every point is used
+    assert hull_vertex_ids(np.c_[rng.normal(size=(50, 2)), np.zeros(50)]) is None
 
 
 def test_sinkhorn_gradient_pulls_camera_when_masks_do_not_overlap(hand):

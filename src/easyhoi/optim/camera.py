@@ -96,6 +96,7 @@ def fit_box(
     principal: tuple[float, float],
     box: np.ndarray,
     center: np.ndarray,
+    extreme_ids: np.ndarray | None = None,
 ) -> np.ndarray:
     """Translation placing the object so its projected box matches ``box``.
 
@@ -106,28 +107,54 @@ def fit_box(
         principal: (cx, cy) pixels.
         box: (4,) target box ``u0, v0, u1, v1`` in pixels.
         center: (3,) object centre.
+        extreme_ids: (K,) indices of the vertices that can be extreme (those of the convex
+            hull, :func:`hull_vertex_ids`), or None for all. The same result: every vertex is
+            used for the mean depth, and the box of the projected points, the extremes of
+            ``x / z`` and ``y / z`` (with ``z > 0``) and of ``x``, ``y`` and ``z``, lies at
+            vertices of the hull; where a point is at or behind the camera plane the iteration
+            uses every vertex.
 
     Returns:
         (3,) ``t`` with ``x_cam = R x + t``: same box centre and area after a few fixed-point
         iterations (depth from the area ratio, lateral shift from the centre offset).
     """
-    X = (verts - center) @ R.T
+    X_all = (verts - center) @ R.T
+    X = X_all if extreme_ids is None else X_all[extreme_ids]
+    mean_z = X_all[:, 2].mean()
+    principal = np.asarray(principal)
     bw, bh = max(box[2] - box[0], 1.0), max(box[3] - box[1], 1.0)
     ext = np.ptp(X[:, :2], axis=0).clip(1e-12)
     z = focal * math.sqrt(ext[0] * ext[1] / (bw * bh)) - X[:, 2].min()
     T = np.array([0.0, 0.0, max(z, 1e-6)])
     target_c = 0.5 * (box[:2] + box[2:])
+
+    def projected(T):
+        P = X + T
+        if P[:, 2].min() <= 1e-9 and X is not X_all:  # the clip below bends the projection
+            P = X_all + T
+        return focal * P[:, :2] / P[:, 2:3].clip(1e-9) + principal
+
     for _ in range(BOX_FIT_ITERS):
-        P = X + T
-        zc = P[:, 2].clip(1e-9)
-        uv = focal * P[:, :2] / zc[:, None] + np.asarray(principal)
-        pw, ph = np.ptp(uv, axis=0).clip(1e-9)
-        T[2] = (T[2] + X[:, 2].mean()) * math.sqrt(pw * ph / (bw * bh)) - X[:, 2].mean()
-        P = X + T
-        uv = focal * P[:, :2] / P[:, 2:3].clip(1e-9) + np.asarray(principal)
+        pw, ph = np.ptp(projected(T), axis=0).clip(1e-9)
+        T[2] = (T[2] + mean_z) * math.sqrt(pw * ph / (bw * bh)) - mean_z
+        uv = projected(T)
         pc = 0.5 * (uv.min(axis=0) + uv.max(axis=0))
-        T[:2] += (target_c - pc) * (T[2] + X[:, 2].mean()) / focal
+        T[:2] += (target_c - pc) * (T[2] + mean_z) / focal
     return T - R @ center
+
+
+def hull_vertex_ids(verts: np.ndarray) -> np.ndarray | None:
+    """Indices of the points of ``verts`` (V, 3) on its convex hull: the hull's vertices and
+    the points within qhull's tolerance of a facet (``Qc``), which a rounding error could make
+    extreme in some direction. None when the hull has no volume (flat or degenerate point sets:
+    then every vertex is used)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        hull = ConvexHull(verts, qhull_options="Qc")
+    except (QhullError, ValueError):
+        return None
+    return np.union1d(hull.vertices, hull.coplanar[:, 0]).astype(np.int64)
 
 
 def _yaw(deg: float) -> np.ndarray:
@@ -187,8 +214,9 @@ def initial_camera(
     h, w = scene.render_size(cfg.resolution_schedule[0], render_size)
     target = scene.masks_at(h, w)["amodal"]
     best, notes = None, []
+    extreme_ids = hull_vertex_ids(verts)
     for label, R in candidate_rotations(cfg.init_rotations):
-        t = fit_box(verts, R, focal, principal, box, c)
+        t = fit_box(verts, R, focal, principal, box, c, extreme_ids)
         cam = Camera.from_focal(focal, W, H, R=R, t=t, dtype=dtype, device=scene.device)
         with torch.no_grad():
             sil = soft_silhouette(
