@@ -375,3 +375,19 @@ def test_scan_scale_matches_rendering_every_candidate(hand, band):
     assert m_got == pytest.approx(m_ref, rel=1e-12)
     assert s_got == pytest.approx(s_ref, abs=1e-6)
     assert len({round(s, 6) for s, _, _ in naive}) > 5  # the candidates differ: the test bites
+
+
+def test_contact_band_term_looks_up_the_zones_alone_with_the_same_values(hand):
+    """The band term queries the SDF at the contact-zone vertices only: the same numbers, to
+    the bit, as the lookup of every vertex taken at those vertices (the SDF is per point)."""
+    from easyhoi.optim.contact import _touch_batch
+
+    sc, scene, _, _ = _setup("box", hand)
+    gt = _gt_verts(sc, hand)
+    batch = torch.stack([gt * s for s in (0.9, 1.0, 1.1)])
+    band = 0.02
+    got = _touch_batch(scene, batch, 48, band)
+    d = scene.sdf(batch.reshape(-1, 3), 48).reshape(3, -1)
+    near = d[:, scene.regions.contact_vertices].abs()
+    beyond = (near.min(dim=1).values - band).clamp_min(0.0)
+    assert torch.equal(got, (near.clamp_max(band).mean(dim=1) + beyond) / band)
