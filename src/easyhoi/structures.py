@@ -257,8 +257,9 @@ class Camera:
         pc = self.world_to_camera(points)
         x, y, z = pc.unbind(-1)
         near = z.abs() < eps
-        # the selection only where it selects (the same values and gradients without it)
-        zs = torch.where(near, eps, z) if bool(near.any()) else z
+        # on the CPU, the selection only where it selects (the same values and gradients
+        # without it); elsewhere asking would wait for the device
+        zs = z if z.device.type == "cpu" and not bool(near.any()) else torch.where(near, eps, z)
         fx, skew, cx, _, fy, cy, _, _, _ = self.K.flatten().unbind()  # one op, not five
         u = fx * x / zs + skew * y / zs + cx
         v = fy * y / zs + cy

@@ -27,16 +27,16 @@ def axis_angle_to_matrix(aa: torch.Tensor) -> torch.Tensor:
     check_last_dim(aa, 3, "axis-angle")
     theta2 = (aa * aa).sum(-1)
     small = theta2 < _SMALL**2
-    if bool(small.any()):
+    if aa.device.type != "cpu" or bool(small.any()):  # (off the CPU, asking would wait)
         safe2 = torch.where(small, torch.ones_like(theta2), theta2)
         theta = safe2.sqrt()
         a = torch.where(small, 1 - theta2 / 6 + theta2**2 / 120, torch.sin(theta) / theta)
         b = torch.where(small, 0.5 - theta2 / 24 + theta2**2 / 720, (1 - torch.cos(theta)) / safe2)
     else:
-        # No angle near zero: the closed form alone. The same values, and the same gradients:
-        # through the branches above the Taylor terms' share of every gradient is exactly zero.
-        # Without the selections the hand fit's batched Jacobian, which runs ``where``'s
-        # backward once per residual row, costs about a fifth less.
+        # No angle near zero (on the CPU): the closed form alone. The same values, and the same
+        # gradients: through the branches above the Taylor terms' share of every gradient is
+        # exactly zero. Without the selections the hand fit's batched Jacobian, which runs
+        # ``where``'s backward once per residual row, costs about a fifth less.
         theta = theta2.sqrt()
         a = torch.sin(theta) / theta
         b = (1 - torch.cos(theta)) / theta2
