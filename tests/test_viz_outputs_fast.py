@@ -123,3 +123,34 @@ def test_compiled_corner_sums_equal_the_numpy_pairs(k):
         c = float(np.cos(np.radians(crease)))
         ref = shade._pair_sums(f, len(v), cross, unit, c)
         np.testing.assert_array_equal(corner_sums(f, len(v), cross, unit, c), ref)
+
+
+def test_a_failing_corner_sums_kernel_warns_once_and_is_not_retried(monkeypatch):
+    pytest.importorskip("numba")
+    from numba.core.errors import NumbaError
+
+    import easyhoi.viz._normals_kernel as kernel
+    from easyhoi.render import get_backend
+
+    if get_backend() != "numba":
+        pytest.skip("the compiled kernels are not in use")
+    calls = []
+
+    def failing(*args):
+        calls.append(1)
+        raise NumbaError("no LLVM here")
+
+    monkeypatch.setattr(kernel, "corner_sums", failing)
+    monkeypatch.setitem(shade._KERNEL_FAILED, "corner_sums", False)
+    v, f = (np.asarray(a) for a in _meshes()[0])
+    f = f.astype(np.int64)
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    unit = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-30)
+    with pytest.warns(RuntimeWarning, match="corner_sums failed"):
+        assert shade._compiled_sums(f, len(v), cross, unit, 0.5) is None
+    assert shade._compiled_sums(f, len(v), cross, unit, 0.5) is None
+    assert len(calls) == 1  # not compiled again at the next picture
+    # the pictures' normals still come out, from the NumPy path: unit vectors per corner
+    normals = shade.corner_normals(v, f)
+    assert normals.shape == (len(f), 3, 3) and len(calls) == 1
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=-1), 1.0, atol=1e-9)
