@@ -17,7 +17,10 @@ as :func:`easyhoi.perception.chain.segment_hands` does in the product. Reported 
   (maximum of its distance transform, ``tests/perception_refs.object_point``), as a user's
   single click.
 
-With ``--click-only`` each photo also gets a second object point where a user would add one
+With ``--click-only`` the summary also gives the share of the one-point masks with IoU < 0.5
+(``point_wrong_flagged_low``) and with IoU >= 0.5 (``point_right_flagged_low``) whose object
+confidence is low, so that the product warns. Each photo also gets a second object point where a
+user would add one
 (``point2``): the deepest pixel of the part of the reference object the one-point mask misses,
 when the mask misses more than it takes in beyond the object (a further object point cannot
 take a leak away; then the one-point IoU is kept). ``point2_worse_by_0.05`` counts the photos
@@ -254,6 +257,8 @@ def run_click(rgb, ref, detector, segmenter) -> dict:
         row["cpu_seconds_point"] = time.process_time() - c0
         m1 = sp.object_mask if sp is not None else None
         row["iou_point"] = iou(m1, ref["object"])
+        conf = sp.confidence.get("object") if sp is not None else None
+        row["low_point"] = bool(conf is None or conf.low)
         row["ceiling_point"] = click_ceiling(rgb, hands, segmenter, p, ref["object"])
         sys.path.insert(0, str(ROOT))
         from tests.perception_refs import background_point, second_point
@@ -274,6 +279,12 @@ def run_click(rgb, ref, detector, segmenter) -> dict:
     return row
 
 
+def _share_low(rows: list[dict], keep) -> float:
+    """Share of the ``rows`` selected by ``keep`` (that ran the click) flagged low."""
+    sel = [r["low_point"] for r in rows if "low_point" in r and keep(r)]
+    return float(np.mean(sel)) if sel else 0.0
+
+
 def click_summary(rows: list[dict]) -> dict:
     pts = [r for r in rows if r["present"]]
     secs = [r["seconds_point"] for r in pts if "seconds_point" in r]
@@ -284,6 +295,9 @@ def click_summary(rows: list[dict]) -> dict:
         if pts
         else 0.0,
         "point_mean_iou": float(np.mean([r.get("iou_point", 0.0) for r in pts])) if pts else 0.0,
+        # the one-point masks with IoU < 0.5 / >= 0.5 whose object confidence is low (warned)
+        "point_wrong_flagged_low": _share_low(pts, lambda r: r.get("iou_point", 0.0) < 0.5),
+        "point_right_flagged_low": _share_low(pts, lambda r: r.get("iou_point", 0.0) >= 0.5),
         # some candidate of the click reaches 0.5 (what a perfect choice among them would give)
         "point_candidates_ge_0.5": float(
             np.mean([(r.get("ceiling_point") or 0.0) >= 0.5 for r in pts])

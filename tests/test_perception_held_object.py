@@ -230,6 +230,35 @@ def test_object_confidence_reads_the_cues():
     assert none.score == 0.0 and none.low
 
 
+def test_a_single_clicks_close_runner_up_makes_the_prompted_confidence_low():
+    props = propose(
+        np.zeros((8, 8, 3), np.uint8), np.zeros((8, 8, 3)), np.zeros((8, 8), bool), 100, 1
+    )
+    cues = np.zeros((len(props.regions), len(ho.CUES)))
+    cues[:, ho.CUES.index("area")] = 0.5
+    hyp = ho.Hypotheses(props, cues, np.ones(len(props.regions)))
+    clean = object_confidence(hyp, 0, None, True, True, 0.0)
+    assert not clean.low and not clean.reasons  # no skin, a held object's size
+    far = object_confidence(hyp, 0, None, True, True, 0.0, click_margin=1.2)
+    assert far.score == clean.score and not far.reasons
+    close = object_confidence(hyp, 0, None, True, True, 0.0, click_margin=0.2)
+    assert close.low and any("almost as high (margin 0.20)" in r for r in close.reasons)
+
+
+def test_click_margin_is_over_the_best_other_region():
+    from easyhoi.perception.click import click_margin
+
+    a = np.zeros((20, 20), bool)
+    a[2:10, 2:10] = True
+    near_copy = a.copy()
+    near_copy[10, 2:10] = True  # IoU 0.89 with a: the same region
+    other = np.zeros((20, 20), bool)
+    other[12:18, 12:18] = True
+    scored = [(5.0, {}, near_copy), (6.0, {}, a), (5.7, {}, other), (4.0, {}, other)]
+    assert click_margin(scored, 1) == pytest.approx(0.3)
+    assert click_margin(scored[:2], 1) is None  # every candidate about the same region
+
+
 def test_segment_hands_picks_the_holding_hand_and_notes_the_other():
     disk = grasped_disk()
     kp2 = KP.copy()

@@ -80,6 +80,8 @@ CLICK_WEIGHTS = {
 FRAME_CAP = 4.0
 #: Object area range, x hand area, outside which the size penalty grows with the log-ratio.
 CLICK_AREA = (0.02, 4.0)
+#: Candidates overlapping less than this (IoU) are other regions for :func:`click_margin`.
+OTHER_REGION_IOU = 0.5
 
 
 def _disk(shape, p, r) -> np.ndarray:
@@ -449,8 +451,9 @@ def click_object(
             and bottom side (:func:`inner_edges`).
 
     Returns:
-        tuple[np.ndarray, list[tuple[float, dict]]]: The (h, w) bool object mask and the
-        (score, cues) of every candidate tried for the first click.
+        tuple[np.ndarray, list[tuple[float, dict]], float | None]: The (h, w) bool object mask,
+        the (score, cues) of every candidate tried for the first click, and the chosen
+        candidate's :func:`click_margin`.
     """
     h, w = img.shape[:2]
     pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
@@ -458,12 +461,29 @@ def click_object(
     p = pts[0]
     scored = scored_candidates(img, scene, p, regions, iterations, seed, inside)
     if not scored:
-        return _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden, []
+        return _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden, [], None
     best = max(range(len(scored)), key=lambda i: scored[i][0])
+    margin = click_margin(scored, best)
     obj = finish_candidate(img, scene, scored[best][2], p, iterations, seed)
     for k in range(1, len(pts)):  # further clicks: the object grown to take each in
         obj = add_click(img, scene, obj, pts[: k + 1], iterations, seed, inside)
-    return obj, [(s, c) for s, c, _ in scored]
+    return obj, [(s, c) for s, c, _ in scored], margin
+
+
+def click_margin(scored: list[tuple[float, dict, np.ndarray]], best: int) -> float | None:
+    """Score of candidate ``best`` less that of the best-scored candidate that is another
+    region (IoU < :data:`OTHER_REGION_IOU` with it); None when every candidate is about the
+    same region. The scores of different regions lie this close when the choice between them is
+    a guess: the same photo saved again as JPEG reorders candidates within about half a point
+    (docs/perception.md)."""
+    m0 = scored[best][2]
+    rest = sorted((i for i in range(len(scored)) if i != best), key=lambda i: -scored[i][0])
+    for i in rest:
+        m = scored[i][2]
+        union = np.logical_or(m0, m).sum()
+        if union and np.logical_and(m0, m).sum() / union < OTHER_REGION_IOU:
+            return float(scored[best][0] - scored[i][0])
+    return None
 
 
 def add_click(

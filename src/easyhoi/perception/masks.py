@@ -235,9 +235,9 @@ class ClassicalHOISegmenter:
         def proposals():
             return self._prompt_proposals(w)
 
-        props = None
+        props, click_margin = None, None
         if clicks:
-            obj, hyp, best, props = clicked_object(
+            obj, hyp, best, props, click_margin = clicked_object(
                 img,
                 scene,
                 to_work(prompts.object_points),
@@ -276,9 +276,13 @@ class ClassicalHOISegmenter:
             hand_m &= ~obj
         obj &= ~hand_m
         runner = ho.runner_up(hyp, best) if (hyp is not None and best is not None) else None
+        # a further point is the fix for an unsure first one: the margin counts for one alone
+        one_click_margin = click_margin if clicks and len(prompts.object_points) == 1 else None
         conf = {
             "hand": hand_confidence(hand, hand_m, kp, d2),
-            "object": object_confidence(hyp, best, runner, has_object, prompted, self.min_score),
+            "object": object_confidence(
+                hyp, best, runner, has_object, prompted, self.min_score, one_click_margin
+            ),
         }
 
         def full(m):

@@ -162,7 +162,7 @@ def clicked_object(
     iterations: int,
     seed: int,
     inside: tuple[bool, bool, bool, bool] | None = None,
-) -> tuple[np.ndarray, ho.Hypotheses, int | None, Proposals | None]:
+) -> tuple[np.ndarray, ho.Hypotheses, int | None, Proposals | None, float | None]:
     """The object from object points alone.
 
     The candidates are the GrabCut masks grown from the first point
@@ -183,14 +183,15 @@ def clicked_object(
 
     Returns:
         tuple: (h, w) bool object mask, the hypotheses (the output mask alone), the index of
-        the chosen one, and the proposals.
+        the chosen one, the proposals, and the first click's score margin over another region
+        (:func:`easyhoi.perception.click.click_margin`; None when there is none).
     """
     h, w = img.shape[:2]
     pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
     props = make_proposals()
     fallback = click_proposals(img, scene, pts[0], props)
-    obj, _ = click_object(img, scene, pts, fallback, iterations, seed, inside)
-    return obj, mask_hypothesis(obj, scene), 0, props
+    obj, _, margin = click_object(img, scene, pts, fallback, iterations, seed, inside)
+    return obj, mask_hypothesis(obj, scene), 0, props, margin
 
 
 def mask_hypothesis(mask: np.ndarray, scene: ho.Scene) -> ho.Hypotheses:

@@ -10,7 +10,9 @@ a grasped object lies (pressed by several fingers and the thumb, filling the gra
 background running out of the picture, with a closed outline); a small margin means another
 region is almost as good a held object, and the choice between them is a guess. Prompted: the
 user said where the object is, so only a region that grew far beyond the prompt or looks like
-skin lowers the score.
+skin lowers the score, and, for a single object point, another outline around the point that
+scores almost as high (the click's choice between them is then a guess, which a second point
+on what the mask misses, or a background point on what it takes in, settles).
 
 Hand: the detector's score, and how much of the skeleton's core the hand mask covers (a mask
 that misses the fingers the detector placed means the hand colour model failed).
@@ -29,6 +31,12 @@ from easyhoi.perception.skin import draw_skeleton, palm_length
 #: wrong choices there score low: a choice is trusted only when the region has most of the
 #: held-object cues (score >= S0) and clearly beats every different region (margin >= M0).
 CALIBRATION = {"A": 1.0, "S0": 5.0, "B": 1.5, "M0": 2.5}
+
+#: A single click's choice is unsure when another region scores within this of it (scores of
+#: about 6; the same photo saved again as JPEG reorders candidates within about half a point).
+CLICK_MARGIN = 0.5
+#: Taken off the prompted logit then: a clean click mask (logit 2.5) falls to low (below 0.5).
+CLICK_MARGIN_PENALTY = 3.0
 
 
 def _sigmoid(z: float) -> float:
@@ -63,8 +71,11 @@ def object_confidence(
     has_object: bool,
     prompted: bool,
     min_score: float,
+    click_margin: float | None = None,
 ) -> MaskConfidence:
-    """Confidence of the held-object mask (see the module docstring)."""
+    """Confidence of the held-object mask (see the module docstring). ``click_margin``: the
+    score margin of a single click's chosen candidate over another region
+    (:func:`easyhoi.perception.click.click_margin`), or None."""
     if hyp is None or best is None or not has_object:
         return MaskConfidence(0.0, ("no region scored as a held object; point at it",))
     cues = dict(zip(CUES, hyp.cues[best], strict=True))
@@ -72,7 +83,14 @@ def object_confidence(
     s = hyp.strength(best)
     if prompted:
         z = 2.5 - 3.0 * cues["skin"] - 2.0 * max(0.0, np.log(max(cues["area"], 1e-6) / 6.0))
-        return MaskConfidence(_sigmoid(z), tuple(r for r in reasons if "skin" in r or "size" in r))
+        reasons = [r for r in reasons if "skin" in r or "size" in r]
+        if click_margin is not None and click_margin < CLICK_MARGIN:
+            z -= CLICK_MARGIN_PENALTY
+            reasons.append(
+                f"another outline around the point scores almost as high (margin "
+                f"{click_margin:.2f}): check masks.png"
+            )
+        return MaskConfidence(_sigmoid(z), tuple(reasons))
     margin = s - hyp.strength(runner) if runner is not None else 3.0
     c = CALIBRATION
     z = c["A"] * (s - c["S0"]) + c["B"] * (min(margin, 3.0) - c["M0"])
