@@ -183,16 +183,16 @@ def _touch_batch(
     """:func:`_touch` of each of ``B`` hands, ``verts_obj`` (B, V, 3): a (B,) tensor, one SDF
     lookup for all of them."""
     with torch.no_grad():
-        if band > 0:  # the contact zones alone are looked up (the SDF is per point)
-            zones = verts_obj[:, scene.regions.contact_vertices]
-            B, V = zones.shape[:2]
-            near = scene.sdf(zones.reshape(-1, 3), sdf_resolution).reshape(B, V).abs()
+        # the band term reads the contact zones alone, so only they are looked up (per point)
+        pts = verts_obj[:, scene.regions.contact_vertices] if band > 0 else verts_obj
+        B, V = pts.shape[:2]
+        d = scene.sdf(pts.reshape(-1, 3), sdf_resolution).reshape(B, V)
+        if band > 0:
+            near = d.abs()
             # no contact zone in the band: the band term is flat, so the closest one's distance
             # beyond the band tells a hand resting near the object from one far off it
             beyond = (near.min(dim=1).values - band).clamp_min(0.0)
             return (near.clamp_max(band).mean(dim=1) + beyond) / band
-        B, V = verts_obj.shape[:2]
-        d = scene.sdf(verts_obj.reshape(-1, 3), sdf_resolution).reshape(B, V)
         return d.min(dim=1).values.abs()
 
 
