@@ -94,9 +94,7 @@ def _write_all(
     export_ply(result.hand_mesh().apply_scale(result.metric_scale), folder / "hand.ply")
     export_ply(result.object_mesh_metric(), folder / "object.ply")
     write_result_json(result, folder / "result.json")
-    max_side = None if full_size else report.PICTURE_MAX_SIDE
-    small = report.picture_scale(result, inp, max_side)
-    pictures = report.render_pictures(*small, hand_model=hand_model, full_size=full_size)
+    pictures = report.render_pictures(result, inp, hand_model=hand_model, full_size=full_size)
     for name, data in pictures.items():
         atomic_write_bytes(folder / name, data)
     report.write_report(result, inp, folder, images=pictures, title=title)

@@ -310,6 +310,18 @@ class Camera:
         # positive finite scales of a valid K keep its focal lengths finite and positive
         return type(self)._trusted(S @ self.K, self.R, self.t, width, height)
 
+    def cropped(self, x0: int, y0: int, width: int, height: int) -> Camera:
+        """The same camera for the ``width`` x ``height`` window of its image whose top-left
+        pixel is (``x0``, ``y0``): the principal point moves by the offset, nothing else."""
+        for name, v in (("x0", x0), ("y0", y0), ("width", width), ("height", height)):
+            if type(v) is not int:
+                raise InvalidInputError(f"crop {name} must be an int, got {v!r}")
+        if width <= 0 or height <= 0:
+            raise InvalidInputError(f"crop size must be positive, got {width}x{height}")
+        shift = torch.tensor([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]],
+                             dtype=self.K.dtype, device=self.K.device)  # fmt: skip
+        return type(self)._trusted(shift @ self.K, self.R, self.t, width, height)
+
     def detach(self) -> Camera:
         K, R, t = self.K, self.R, self.t
         if not (K.requires_grad or R.requires_grad or t.requires_grad):

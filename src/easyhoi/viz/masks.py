@@ -90,13 +90,17 @@ def _compare(input_mask: np.ndarray, rendered: np.ndarray) -> np.ndarray:
     return _PALETTE[code]
 
 
-def masks_png(result: HOIResult, inp: HOIInput, full_size: bool = False) -> bytes:
+def masks_png(
+    result: HOIResult, inp: HOIInput, full_size: bool = False, context: np.ndarray | None = None
+) -> bytes:
     """Figure: top row photo and input masks, bottom row overlay and input-vs-rendered maps.
 
     Bottom-row colours: green where both masks agree, red for input only, blue for rendered
     only; each title gives the IoU (computed at the input's size). The panels are
     :data:`PANEL_WIDTH` pixels wide; the overlay is drawn at that width, or at the photo's size
-    with ``full_size`` (then downscaled into its panel).
+    with ``full_size`` (then downscaled into its panel). With ``context`` (the whole photo
+    with the window that ``result`` and ``inp`` were cut to outlined, see
+    :mod:`easyhoi.viz.zoom`) the first panel shows it instead of ``inp``'s photo.
     """
     result = _check_result(result)
     if not isinstance(inp, HOIInput):
@@ -104,7 +108,12 @@ def masks_png(result: HOIResult, inp: HOIInput, full_size: bool = False) -> byte
     H, W = inp.size
     rendered = rendered_masks(result, H, W)
     small = shrink_photo(inp.image, PANEL_WIDTH)  # the photo panel, as compose_grid shows it
-    panels = [Panel(small, "input photo")]
+    first = (
+        Panel(small, "input photo")
+        if context is None
+        else Panel(context, "input photo\n(outlined: the part shown)")
+    )
+    panels = [first]
     panels += [Panel(getattr(inp, i), f"input {label}") for i, _, label in MASK_PAIRS]
     photo = inp.image if full_size else small
     panels.append(Panel(render_overlay(result, photo).image, "reconstruction overlay"))
@@ -115,4 +124,6 @@ def masks_png(result: HOIResult, inp: HOIInput, full_size: bool = False) -> byte
         panels.append(Panel(_compare(getattr(inp, i), rendered[r]), title))
     legend = [("both", _BOTH), ("input only", _INPUT_ONLY), ("rendered only", _RENDER_ONLY)]
     title = "Input masks (top) vs masks rendered from the reconstruction (bottom)"
+    if context is not None:
+        title += ", around the hand and object"
     return png_bytes(compose_grid(panels, 4, PANEL_WIDTH, title=title, legend=legend))

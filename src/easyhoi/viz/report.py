@@ -34,8 +34,8 @@ __all__ = [
 PICTURES = {
     "overlay.png": "Hand (orange) and object (blue) over the photo",
     "views.png": "Other viewpoints around the object centre",
-    "stages.png": "Stage snapshots",
-    "masks.png": "Input masks vs rendered masks",
+    "stages.png": "Stage snapshots, around the hand and object",
+    "masks.png": "Input masks vs rendered masks, around the hand and object",
     "losses.png": "Loss curves",
 }
 
@@ -215,9 +215,9 @@ def picture_scale(
     Returns the arguments unchanged when the photo's longer side is at most ``max_side``, or
     when ``max_side`` is None (full-size pictures).
     """
-    from dataclasses import replace
-
     import cv2
+
+    from easyhoi.viz.zoom import mapped
 
     H, W = inp.image.shape[:2]
     if max_side is None or max(H, W) <= max_side:
@@ -226,51 +226,58 @@ def picture_scale(
     w, h = max(1, round(W * s)), max(1, round(H * s))
 
     def img(a):
-        return None if a is None else cv2.resize(a, (w, h), interpolation=cv2.INTER_AREA)
+        return cv2.resize(a, (w, h), interpolation=cv2.INTER_AREA)
 
     def mask(m):
-        if m is None:
-            return None
         small = cv2.resize(m.astype("uint8"), (w, h), interpolation=cv2.INTER_NEAREST)
         return small.astype(bool)
 
-    def cam(c):
-        return None if c is None else c.resized(w, h)
-
-    small_inp = replace(
-        inp, image=img(inp.image), hand_mask=mask(inp.hand_mask),
-        object_mask=mask(inp.object_mask), amodal_mask=mask(inp.amodal_mask),
-        inpainted_image=img(inp.inpainted_image),
-        complete_hand_mask=mask(inp.complete_hand_mask), hand_camera=cam(inp.hand_camera),
-    )  # fmt: skip
-    stages = tuple(replace(st, camera=cam(st.camera)) for st in result.stages)
-    return replace(result, camera=cam(result.camera), stages=stages), small_inp
+    return mapped(result, inp, img, mask, lambda c: c.resized(w, h))
 
 
 def render_pictures(
-    result: HOIResult, inp: HOIInput, hand_model=None, full_size: bool = False
+    result: HOIResult,
+    inp: HOIInput,
+    hand_model=None,
+    full_size: bool = False,
+    max_side: int | None = PICTURE_MAX_SIDE,
 ) -> dict[str, bytes]:
     """PNG bytes of every picture in :data:`PICTURES` (the expensive part of a report).
 
+    ``overlay.png`` shows the whole photo, at most ``max_side`` pixels on its longer side;
+    ``stages.png`` and ``masks.png`` show the window around the hand and the object
+    (:mod:`easyhoi.viz.zoom`), cut from the photo at its own size.
+
     Args:
         result: The reconstruction.
-        inp: Its input (photo and masks).
+        inp: Its input (photo and masks), at the photo's size.
         hand_model: The run's hand model, posing the stage snapshots' hands (None: only the
             final stage shows the hand).
-        full_size: Draw the overlays inside the figures at the photo's size instead of the
-            size of their panels.
+        full_size: Draw the pictures at the photo's size (no ``max_side``) and the overlays
+            inside the figures at their window's size instead of the size of their panels.
+        max_side: Longer side of the pictures, pixels (None: the photo's).
     """
-    from easyhoi.viz.masks import masks_png
-    from easyhoi.viz.overlay import render_overlay
+    from easyhoi.viz import masks, stages
+    from easyhoi.viz.overlay import render_overlay, shrink_photo
     from easyhoi.viz.plots import losses_png, png_bytes
-    from easyhoi.viz.stages import stages_png
     from easyhoi.viz.views import views_png
+    from easyhoi.viz.zoom import interaction_box, outlined, zoomed
 
+    cap = None if full_size else max_side
+    small_result, small_inp = picture_scale(result, inp, cap)
+    box = interaction_box(result, inp)
+    wide = max(masks.PANEL_WIDTH, stages.PANEL_WIDTH)
+    zoom_result, zoom_inp = picture_scale(*zoomed(result, inp, box, wide), cap)
+    photo = shrink_photo(inp.image, masks.PANEL_WIDTH)
+    f = photo.shape[1] / inp.image.shape[1]
+    context = outlined(photo, tuple(round(v * f) for v in box))
     return {
-        "overlay.png": png_bytes(render_overlay(result, inp.image).image),
+        "overlay.png": png_bytes(render_overlay(small_result, small_inp.image).image),
         "views.png": views_png(result),
-        "stages.png": stages_png(result, inp.image, hand_model, full_size=full_size),
-        "masks.png": masks_png(result, inp, full_size=full_size),
+        "stages.png": stages.stages_png(
+            zoom_result, zoom_inp.image, hand_model, full_size=full_size, zoomed=True
+        ),
+        "masks.png": masks.masks_png(zoom_result, zoom_inp, full_size=full_size, context=context),
         "losses.png": losses_png(result),
     }
 

@@ -66,12 +66,18 @@ def _summary(stage) -> str:
 
 
 def stages_png(
-    result: HOIResult, image: np.ndarray, hand_model=None, full_size: bool = False
+    result: HOIResult,
+    image: np.ndarray,
+    hand_model=None,
+    full_size: bool = False,
+    zoomed: bool = False,
 ) -> bytes:
     """One figure with an overlay panel per stage, titled with the stage's final loss.
 
     The overlays are drawn at the panels' width (:data:`PANEL_WIDTH` pixels), or at the
-    photo's size with ``full_size`` (then downscaled into the same panels).
+    photo's size with ``full_size`` (then downscaled into the same panels). ``zoomed``:
+    ``result`` and ``image`` are the window around the hand and the object
+    (:mod:`easyhoi.viz.zoom`), which the title then says.
     """
     panels = render_stages(result, image, hand_model, width=None if full_size else PANEL_WIDTH)
     stages = {s.name: s for s in result.stages}
@@ -85,6 +91,7 @@ def stages_png(
             title += f"\n({note})"
         shown.append(Panel(img, title))
     legend = [(m.name, m.color) for m in result_meshes(result)]
-    fig = compose_grid(shown, 4, PANEL_WIDTH, title="Optimization stages (meshes over the photo)",
-                       legend=legend)  # fmt: skip
+    title = "Optimization stages (meshes over the photo"
+    title += ", around the hand and object)" if zoomed else ")"
+    fig = compose_grid(shown, 4, PANEL_WIDTH, title=title, legend=legend)
     return png_bytes(fig)
