@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -137,6 +138,15 @@ def test_preset_quality_table_flags_fast_and_gt_against_paper():
     assert cells["hand_iou"] == ["hand_iou", "0.500", "0.800", "yes", "0.62 (0.62-0.62)",
                                  "1.000", "no"]  # fmt: skip
     assert cells["iv_cm3"][3] == "no" and cells["iv_cm3"][6] == "no"
+    # a metric the run did not compute (the gravity cone with --light) reads nan, silently
+    for r in rows:
+        for d in (r["stages"]["refine"], r["paper"], r["ground_truth"]):
+            d["sd_cone_cm"] = None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        table = preset_quality_table({"scenes": rows})
+    cone = next(ln for ln in table.splitlines() if ln.startswith("| sd_cone_cm"))
+    assert [c.strip() for c in cone.strip("|").split("|")][1:3] == ["nan", "nan"]
 
 
 def test_ratio_interval_matches_a_naive_paired_bootstrap():

@@ -211,9 +211,15 @@ def _preset_values(rows: list[dict], key: str) -> tuple[np.ndarray, np.ndarray, 
     )  # fmt: skip
 
 
+def _mean(v: np.ndarray) -> float:
+    """Mean of ``v``; NaN (without NumPy's empty-slice warning) when it holds no value, as a
+    metric the run did not compute (the gravity cone with ``--light``)."""
+    return float(v.mean()) if len(v) else float("nan")
+
+
 def _preset_means(rows: list[dict], key: str) -> tuple[float, float, float]:
     """Means over the paper scenes of ``key``: fast (final stage), paper, GT hand."""
-    return tuple(float(v.mean()) for v in _preset_values(rows, key))
+    return tuple(_mean(v) for v in _preset_values(rows, key))
 
 
 #: Resamples and seed of :func:`ratio_interval` (fixed: the tables are deterministic).
@@ -252,7 +258,7 @@ def preset_quality_table(report: dict) -> str:
     rows = []
     for k, hb in PRESET_METRICS:
         fv, pv, gv = _preset_values(pr, k)
-        f, p, g = float(fv.mean()), float(pv.mean()), float(gv.mean())
+        f, p, g = _mean(fv), _mean(pv), _mean(gv)
         r, lo, hi = ratio_interval(fv, pv)
         ci = f"{r:.2f} ({lo:.2f}-{hi:.2f})" if np.isfinite(r) else "n/a"
         rows.append([k, f"{f:.3f}", f"{p:.3f}", "yes" if _worse(f, p, hb) else "no", ci,
