@@ -268,7 +268,7 @@ def render_pictures(
     box = interaction_box(result, inp)
     wide = max(masks.PANEL_WIDTH, stages.PANEL_WIDTH)
     zoom_result, zoom_inp = picture_scale(*zoomed(result, inp, box, wide), cap)
-    photo = shrink_photo(inp.image, masks.PANEL_WIDTH)
+    photo = shrink_photo(small_inp.image, masks.PANEL_WIDTH)
     f = photo.shape[1] / inp.image.shape[1]
     context = outlined(photo, tuple(round(v * f) for v in box))
     return {

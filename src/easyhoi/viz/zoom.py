@@ -28,19 +28,17 @@ ZOOM_MIN_SIDE = 0.25
 
 
 def mapped(result: HOIResult, inp: HOIInput, image, mask, camera) -> tuple[HOIResult, HOIInput]:
-    """``result`` and ``inp`` with every picture, mask and camera passed through ``image``,
-    ``mask`` and ``camera`` (each called on present values only)."""
-
-    def opt(fn, v):
-        return None if v is None else fn(v)
-
+    """``result`` and ``inp`` for a picture grid: the photo, the three masks and every camera
+    passed through ``image``, ``mask`` and ``camera``. The hand-removed photo and the complete
+    hand mask, which no picture draws, are dropped (None) rather than resampled."""
     new_inp = replace(
         inp, image=image(inp.image), hand_mask=mask(inp.hand_mask),
         object_mask=mask(inp.object_mask), amodal_mask=mask(inp.amodal_mask),
-        inpainted_image=opt(image, inp.inpainted_image),
-        complete_hand_mask=opt(mask, inp.complete_hand_mask), hand_camera=camera(inp.hand_camera),
+        inpainted_image=None, complete_hand_mask=None, hand_camera=camera(inp.hand_camera),
     )  # fmt: skip
-    stages = tuple(replace(st, camera=opt(camera, st.camera)) for st in result.stages)
+    stages = tuple(
+        replace(st, camera=None if st.camera is None else camera(st.camera)) for st in result.stages
+    )
     return replace(result, camera=camera(result.camera), stages=stages), new_inp
 
 
