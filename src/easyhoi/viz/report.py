@@ -210,7 +210,9 @@ PICTURE_MAX_SIDE = 1024
 def picture_scale(
     result: HOIResult, inp: HOIInput, max_side: int | None = PICTURE_MAX_SIDE
 ) -> tuple[HOIResult, HOIInput]:
-    """``result`` and ``inp`` at picture size: photo, masks and every camera downscaled.
+    """``result`` and ``inp`` at picture size: photo, masks and every camera downscaled (the
+    hand-removed photo and the complete hand mask, which no picture draws, dropped; see
+    :func:`easyhoi.viz.zoom.mapped`).
 
     Returns the arguments unchanged when the photo's longer side is at most ``max_side``, or
     when ``max_side`` is None (full-size pictures).
