@@ -164,6 +164,7 @@ def test_a_failing_numba_kernel_warns_and_falls_back_to_torch(monkeypatch):
 
     from numba.core.errors import TypingError
 
+    from easyhoi import compiled
     from easyhoi.render import _common, extend_depth
     from easyhoi.render.raster import depth_map
 
@@ -176,6 +177,7 @@ def test_a_failing_numba_kernel_warns_and_falls_back_to_torch(monkeypatch):
         raise TypingError("cannot compile on this machine")
 
     broken = SimpleNamespace(soft_logsum_forward=boom, zbuffer=boom, min_filter=boom)
+    monkeypatch.setattr(compiled, "_FAILED", set())  # this test's failures stay in it
     for call in (lambda: soft_silhouette(v, f, cam), lambda: depth_map(v, f, cam),
                  lambda: extend_depth(z, 2)):  # fmt: skip
         monkeypatch.setitem(_common._NUMBA, "mod", broken)

@@ -126,7 +126,7 @@ def test_objective_equals_the_plain_formulation_bit_for_bit(monkeypatch):
     for wf in _frames():
         fast = cuboid._SilhouetteIoU(wf)
         assert fast.kernel is not None
-        monkeypatch.setitem(cuboid._KERNEL, "sums", None)
+        monkeypatch.setattr(cuboid, "_hull_kernel", lambda: None)
         numpy_path = cuboid._SilhouetteIoU(wf)
         monkeypatch.undo()
         assert numpy_path.kernel is None
@@ -137,6 +137,32 @@ def test_objective_equals_the_plain_formulation_bit_for_bit(monkeypatch):
             assert got == _plain_objective(x, wf) == numpy_path(x)
             values.add(got)
         assert len(values) > 100 and 0.0 in values
+
+
+def test_a_failing_kernel_warns_once_and_the_numpy_path_takes_over(monkeypatch):
+    from numba.core.errors import NumbaError
+
+    from easyhoi import compiled
+
+    calls = []
+
+    def failing(*args):
+        calls.append(1)
+        raise NumbaError("no LLVM here")
+
+    monkeypatch.setattr(compiled, "_FAILED", set())  # this test's failure stays in it
+    monkeypatch.setattr(_hull_kernel, "hull_weight_sums", failing)
+    wf = _frames()[0]
+    rng = np.random.default_rng(5)
+    boxes = [_random_box(rng, wf.mask.shape) for _ in range(20)]
+    objective = cuboid._SilhouetteIoU(wf)
+    assert objective.kernel is failing
+    with pytest.warns(RuntimeWarning, match="numba kernel hull_weight_sums failed"):
+        first = objective(boxes[0])
+    assert first == _plain_objective(boxes[0], wf)
+    assert [objective(x) for x in boxes[1:]] == [_plain_objective(x, wf) for x in boxes[1:]]
+    assert cuboid._SilhouetteIoU(wf).kernel is None  # not tried again in this process
+    assert len(calls) == 1
 
 
 def test_fit_chooses_the_same_box_as_with_the_plain_objective(monkeypatch):

@@ -38,29 +38,20 @@ def numba_kernels():
 def numba_call(name: str, *args) -> bool:
     """Run the numba kernel ``name``; False (and torch from now on) when numba itself fails.
 
-    A kernel that cannot be compiled or run on this machine (numba / LLVM errors) must not
-    stop a reconstruction: a warning names the failure once, the compiled kernels are
-    disabled for the process (``auto`` resolves to ``torch``) and the caller uses its torch
-    path. Errors that are not numba's propagate.
+    A kernel that cannot be compiled or run on this machine must not stop a reconstruction:
+    :func:`easyhoi.compiled.run` warns once and marks it failed, and here the compiled kernels
+    are disabled for the process (``auto`` resolves to ``torch``; they share one compiled
+    module) and the caller uses its torch path. Errors that are not numba's propagate.
     """
-    from numba.core.errors import NumbaError
+    from easyhoi import compiled
 
-    try:
-        getattr(numba_kernels(), name)(*args)
-    except NumbaError as exc:
-        import warnings
-
-        warnings.warn(
-            f"numba kernel {name} failed ({type(exc).__name__}: {str(exc)[:200]}); using the "
-            "slower torch kernels",
-            RuntimeWarning,
-            stacklevel=3,
-        )
+    ok, _ = compiled.run(name, getattr(numba_kernels(), name), *args,
+                         fallback="using the slower torch kernels")  # fmt: skip
+    if not ok:
         _NUMBA["mod"] = None
         if BACKEND["name"] == "numba":
             BACKEND["name"] = "auto"
-        return False
-    return True
+    return ok
 
 
 def get_backend() -> str:

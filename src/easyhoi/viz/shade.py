@@ -178,38 +178,21 @@ def _pair_sums(f, n_vertices, cross, unit, cos_crease) -> np.ndarray:
     return np.stack([np.bincount(corner, w[:, j], len(corner_vertex)) for j in range(3)], axis=1)
 
 
-#: Set when the compiled corner sums failed in this process: the NumPy path from then on.
-_KERNEL_FAILED = {"corner_sums": False}
-
-
 def _compiled_sums(f, n_vertices, cross, unit, cos_crease) -> np.ndarray | None:
     """:func:`_pair_sums` by the compiled kernel (the same sums); None without numba, or once
-    the kernel failed to compile or run in this process (a warning names the failure once, as
-    the renderer's kernels do: a failing compile is not retried at every picture)."""
+    the kernel failed to compile or run in this process (:mod:`easyhoi.compiled`: a warning
+    names the failure once, and a failing compile is not retried at every picture)."""
+    from easyhoi import compiled
     from easyhoi.render import get_backend
 
-    if _KERNEL_FAILED["corner_sums"] or get_backend() != "numba" or not len(f):
+    if get_backend() != "numba" or not len(f):
         return None
-    try:
-        from numba.core.errors import NumbaError
-
-        from easyhoi.viz._normals_kernel import corner_sums
-    except ImportError:
-        _KERNEL_FAILED["corner_sums"] = True
+    fn = compiled.kernel("easyhoi.viz._normals_kernel", "corner_sums")
+    if fn is None:
         return None
-    try:
-        return corner_sums(f, n_vertices, cross, unit, cos_crease)
-    except NumbaError as exc:
-        import warnings
-
-        warnings.warn(
-            f"numba kernel corner_sums failed ({type(exc).__name__}: {str(exc)[:200]}); the "
-            "pictures' normals use the slower NumPy path",
-            RuntimeWarning,
-            stacklevel=2,
-        )
-        _KERNEL_FAILED["corner_sums"] = True
-        return None
+    ok, sums = compiled.run("corner_sums", fn, f, n_vertices, cross, unit, cos_crease,
+                            fallback="the pictures' normals use the slower NumPy path")  # fmt: skip
+    return sums if ok else None
 
 
 def _as_background(background, camera: Camera) -> np.ndarray:

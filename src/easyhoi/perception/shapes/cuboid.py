@@ -134,22 +134,13 @@ def _hull_pixels(x: np.ndarray, shape) -> tuple[slice, slice, np.ndarray] | None
     return slice(r0, r1), slice(c0, c1), inside
 
 
-_KERNEL: dict[str, object] = {}
-
-
 def _hull_kernel():
     """:func:`._hull_kernel.hull_weight_sums`, or None where numba cannot be imported or the
-    kernel cannot be compiled or run on this machine (the NumPy path is used)."""
-    if "sums" not in _KERNEL:
-        try:
-            from easyhoi.perception.shapes._hull_kernel import hull_weight_sums
+    kernel failed to compile or run in this process (:mod:`easyhoi.compiled`; the NumPy path
+    is used)."""
+    from easyhoi import compiled
 
-            probe = np.zeros((1, 2), np.int64)
-            hull_weight_sums(np.array([[0, 0], [1, 0], [0, 1]], np.float32), probe, probe)
-        except Exception:  # noqa: BLE001 - numba missing or broken: the NumPy path
-            hull_weight_sums = None
-        _KERNEL["sums"] = hull_weight_sums
-    return _KERNEL["sums"]
+    return compiled.kernel("easyhoi.perception.shapes._hull_kernel", "hull_weight_sums")
 
 
 class _SilhouetteIoU:
@@ -185,8 +176,16 @@ class _SilhouetteIoU:
         if not self.exact:
             return fit_iou(_silhouette(x, self.wf.mask.shape), self.wf)
         if self.kernel is not None:
-            q_in, q_out, ok = self.kernel(_hull(x), self.quarters_in, self.quarters_out)
-            if ok:  # every vertex finite
+            from easyhoi import compiled
+
+            args = (_hull(x), self.quarters_in, self.quarters_out)
+            ran, sums = compiled.run(
+                "hull_weight_sums", self.kernel, *args, fallback="the box fit sums with NumPy"
+            )
+            if not ran:
+                self.kernel = None
+            elif sums[2]:  # every vertex finite
+                q_in, q_out = sums[0], sums[1]
                 union = self.mask_weight + q_out / 4.0
                 return float(q_in / 4.0 / union) if union > 0 else 0.0
         hit = _hull_pixels(x, self.wf.mask.shape)
