@@ -19,15 +19,10 @@ from __future__ import annotations
 import importlib
 import warnings
 
-__all__ = ["failed", "kernel", "run"]
+__all__ = ["kernel", "run"]
 
 #: Names of the kernels that failed in this process.
 _FAILED: set[str] = set()
-
-
-def failed(name: str) -> bool:
-    """Whether kernel ``name`` failed to compile or run in this process."""
-    return name in _FAILED
 
 
 def kernel(module: str, name: str):

@@ -13,6 +13,7 @@ import threading
 import numpy as np
 import torch
 
+from easyhoi import compiled
 from easyhoi.checks import check_faces, check_finite
 from easyhoi.errors import InvalidInputError
 from easyhoi.structures import Camera
@@ -43,8 +44,6 @@ def numba_call(name: str, *args) -> bool:
     are disabled for the process (``auto`` resolves to ``torch``; they share one compiled
     module) and the caller uses its torch path. Errors that are not numba's propagate.
     """
-    from easyhoi import compiled
-
     ok, _ = compiled.run(name, getattr(numba_kernels(), name), *args,
                          fallback="using the slower torch kernels")  # fmt: skip
     if not ok:

@@ -19,6 +19,7 @@ from functools import cached_property
 import numpy as np
 import torch
 
+from easyhoi import compiled
 from easyhoi.errors import InvalidInputError
 from easyhoi.render.raster import face_buffer
 from easyhoi.structures import Camera
@@ -182,7 +183,6 @@ def _compiled_sums(f, n_vertices, cross, unit, cos_crease) -> np.ndarray | None:
     """:func:`_pair_sums` by the compiled kernel (the same sums); None without numba, or once
     the kernel failed to compile or run in this process (:mod:`easyhoi.compiled`: a warning
     names the failure once, and a failing compile is not retried at every picture)."""
-    from easyhoi import compiled
     from easyhoi.render import get_backend
 
     if get_backend() != "numba" or not len(f):

@@ -28,6 +28,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 
+from easyhoi import compiled
 from easyhoi.perception.shapes.common import Hypothesis, WorkFrame, fit_iou
 
 _SIGNS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
@@ -138,8 +139,6 @@ def _hull_kernel():
     """:func:`._hull_kernel.hull_weight_sums`, or None where numba cannot be imported or the
     kernel failed to compile or run in this process (:mod:`easyhoi.compiled`; the NumPy path
     is used)."""
-    from easyhoi import compiled
-
     return compiled.kernel("easyhoi.perception.shapes._hull_kernel", "hull_weight_sums")
 
 
@@ -176,8 +175,6 @@ class _SilhouetteIoU:
         if not self.exact:
             return fit_iou(_silhouette(x, self.wf.mask.shape), self.wf)
         if self.kernel is not None:
-            from easyhoi import compiled
-
             args = (_hull(x), self.quarters_in, self.quarters_out)
             ran, sums = compiled.run(
                 "hull_weight_sums", self.kernel, *args, fallback="the box fit sums with NumPy"
