@@ -55,7 +55,9 @@ def test_only_the_settings_load_the_hand_model():
         assert "load_hand_model" not in (SRC / rel).read_text(encoding="utf-8"), rel
 
 
-def test_resolve_run():
+def test_resolve_run(monkeypatch):
+    # a machine without a GPU: "auto" is the CPU and asking for cuda is an error
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     run = resolve_run()
     assert run.config is get_preset() and run.seed == 0 and run.device == "cpu"
     assert run.hand_model.name == "openhand" and run.hand_model.v_template.dtype == torch.float32
