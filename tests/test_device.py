@@ -264,3 +264,19 @@ def test_hand_model_on_another_device_is_a_moved_copy(hand):
     assert moved.regions.contact_vertices.device.type == "meta"
     assert hand.faces.device.type == "cpu" and hand.regions.vertex_part.device.type == "cpu"
     assert moved.faces.shape == hand.faces.shape
+
+
+def test_auto_keeps_the_optimizer_on_the_cpu(monkeypatch, hand):
+    # the optimizer is slower on a GPU than with the CPU's numba kernels (docs/gpu.md): "auto"
+    # puts the large models there and the optimizer on the CPU; a named device takes both
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
+    cfg = get_preset("fast")
+    run = resolve_run(cfg, hand_model=hand, device="auto")
+    assert (run.device, run.optim_device) == ("cuda", "cpu")
+    assert run.with_seed(3).optim_device == "cpu"
+    assert resolve_run(cfg, hand_model=hand, device="cuda").optim_device == "cuda"
+    assert resolve_run(cfg, hand_model=hand, device="cuda:1").optim_device == "cuda:1"
+    assert resolve_run(replace(cfg, device="cuda:1"), hand_model=hand).optim_device == "cuda:1"
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert resolve_run(cfg, hand_model=hand).optim_device == "cpu"

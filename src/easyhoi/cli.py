@@ -533,8 +533,9 @@ def _add_model_options(p: argparse.ArgumentParser) -> None:
 
 def _add_device_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default=None, metavar="{auto,cpu,cuda,cuda:N}",
-                   help="where the optimizer and large models run (default: config 'device', "
-                        "auto = cuda when torch sees a GPU)")  # fmt: skip
+                   help="where the optimizer and large models run (default: config 'device'; "
+                        "auto = large models on cuda when torch sees a GPU, the optimizer on "
+                        "the CPU, where it is faster)")  # fmt: skip
 
 
 def _set_torch_threads(args) -> None:

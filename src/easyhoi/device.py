@@ -1,10 +1,11 @@
 """Device names of a run: "cpu", "cuda" / "cuda:N", or "auto" (resolved once per run).
 
-Every tensor of a reconstruction lives on one device, chosen by ``--device`` (config field
-``device``) and resolved by :func:`resolve_device` inside :func:`easyhoi.settings.resolve_run`.
-"auto" is cuda when torch sees a GPU and cpu otherwise, so a user with a GPU gets the large
-models at GPU speed without asking; asking for cuda where there is none is an error, never a
-silent fallback (the run would be far slower than the user planned for).
+The device is chosen by ``--device`` (config field ``device``) and resolved by
+:func:`resolve_device` inside :func:`easyhoi.settings.resolve_run`. "auto" is cuda when torch
+sees a GPU and cpu otherwise, so a user with a GPU gets the large models at GPU speed without
+asking (the optimizer then stays on the CPU, where it is faster:
+:attr:`easyhoi.settings.RunSettings.optim_device`); asking for cuda where there is none is an
+error, never a silent fallback (the run would be far slower than the user planned for).
 
 Checking a name needs no torch; resolving "auto" or "cuda" imports it.
 """

@@ -82,7 +82,7 @@ def reconstruct_photo(
         prompted = given is not None and given.has_object_prompt
         raise low_confidence_error(report.to_dict(), prompted)
     result = optimize(
-        inp, run.config.optim, hand_model=run.hand_model, progress=progress, device=run.device
+        inp, run.config.optim, hand_model=run.hand_model, progress=progress, device=run.optim_device
     )
     files = []
     if folder is not None:

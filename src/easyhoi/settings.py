@@ -28,14 +28,20 @@ class RunSettings:
         hand_model: The hand model instance (``config.hand_model``, in ``config.optim.dtype``),
             shared by perception, the optimizer and the pictures. Models are stateless layers,
             so one instance serves any number of photos.
-        device: Where tensors and large models live: "cpu", "cuda" or "cuda:N", already
-            resolved ("auto" never appears here). The hand model stays on the CPU (perception
-            fits it there); the optimizer works on its own copy on this device.
+        device: Where the large models live: "cpu", "cuda" or "cuda:N", already resolved
+            ("auto" never appears here). The hand model stays on the CPU (perception fits it
+            there).
+        optim_device: Where the optimizer works on its own copy of the hand model: ``device``
+            when the device was named, the CPU when it was "auto". Measured on an H200 the
+            optimizer's problems (a few thousand vertices, renders of 256 px) are too small to
+            fill a GPU: the fast preset took 2.2 times as long there as with the CPU's numba
+            kernels (docs/gpu.md), while the large models gain from it.
     """
 
     config: EasyHOIConfig
     hand_model: object
     device: str = "cpu"
+    optim_device: str = "cpu"
 
     @property
     def seed(self) -> int:
@@ -61,8 +67,9 @@ def resolve_run(
         seed: Replaces ``config.optim.seed`` when given (None: keep the configuration's seed).
         hand_model: An already loaded hand model to use (None: load ``config.hand_model`` from
             ``config.mano_dir``, in ``config.optim.dtype``).
-        device: "cpu", "cuda", "cuda:N" or "auto" (cuda when torch sees a GPU); None uses
-            ``config.device``. Resolved here, once (:func:`easyhoi.device.resolve_device`).
+        device: "cpu", "cuda", "cuda:N" or "auto" (the large models on cuda when torch sees a
+            GPU, the optimizer on the CPU); None uses ``config.device``. Resolved here, once
+            (:func:`easyhoi.device.resolve_device`).
 
     Returns:
         The resolved :class:`RunSettings`.
@@ -78,9 +85,11 @@ def resolve_run(
         raise InvalidInputError(f"config must be an EasyHOIConfig, got {type(cfg).__name__}")
     if seed is not None:
         cfg = with_overrides(cfg, {"optim.seed": seed})
-    device = resolve_device(cfg.device if device is None else device)
+    asked = cfg.device if device is None else device
+    device = resolve_device(asked)
     if hand_model is None:
         from easyhoi.hand import load_hand_model
 
         hand_model = load_hand_model(cfg.hand_model, cfg.mano_dir, dtype=cfg.optim.torch_dtype)
-    return RunSettings(config=cfg, hand_model=hand_model, device=device)
+    optim_device = "cpu" if asked == "auto" else device
+    return RunSettings(config=cfg, hand_model=hand_model, device=device, optim_device=optim_device)
