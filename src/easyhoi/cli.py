@@ -92,7 +92,7 @@ def cmd_example(args) -> int:
         from easyhoi.result_folder import write_result_folder
 
         inp = scene.to_hoi_input("hamer")
-        result = optimize(inp, run.config.optim, hand_model=run.hand_model)
+        result = optimize(inp, run.config.optim, hand_model=run.hand_model, device=run.optim_device)
         write_result_folder(result, inp, folder, hand_model=run.hand_model, title=photo.name)
         how = "synthetic perception outputs -> optimizer"
     p = result.plausibility
