@@ -33,9 +33,9 @@ class RunSettings:
             there).
         optim_device: Where the optimizer works on its own copy of the hand model: ``device``
             when the device was named, the CPU when it was "auto". Measured on an H200 the
-            optimizer's problems (a few thousand vertices, renders of 256 px) are too small to
-            fill a GPU: the fast preset took 2.2 times as long there as with the CPU's numba
-            kernels (docs/gpu.md), while the large models gain from it.
+            optimizer's problems (a few thousand vertices, renders of a few hundred pixels)
+            are too small to fill a GPU: the fast preset took 2.2 times as long there as with
+            the CPU's numba kernels (docs/gpu.md), while the large models gain from it.
     """
 
     config: EasyHOIConfig
