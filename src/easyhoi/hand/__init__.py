@@ -5,7 +5,8 @@ from __future__ import annotations
 import torch
 
 from easyhoi.errors import InvalidInputError
-from easyhoi.hand.base import HandModel, HandRegions, mirror_params, mirror_points
+from easyhoi.hand.base import HandModel, mirror_params, mirror_points
+from easyhoi.hand.regions import HandRegions
 
 HAND_MODELS = ("open", "mano")
 

@@ -14,7 +14,7 @@ negated); faces of a left hand have reversed winding so normals still point outw
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, fields
+from dataclasses import fields
 
 import torch
 from torch import nn
@@ -22,6 +22,7 @@ from torch import nn
 from easyhoi.errors import InvalidInputError
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hand.lbs import forward_kinematics, skin
+from easyhoi.hand.regions import HandRegions, compute_regions
 from easyhoi.structures import (
     JOINT_PARENTS,
     OPENPOSE_ORDER,
@@ -31,24 +32,6 @@ from easyhoi.structures import (
 
 #: Fingertip order used by ``tip_vertex_ids``.
 TIP_ORDER = ("thumb", "index", "middle", "ring", "pinky")
-
-
-@dataclass(frozen=True)
-class HandRegions:
-    """Fixed labels on a hand model's closed mesh.
-
-    Attributes:
-        palmar_faces: (F,) bool, True for faces on the palm / finger-pad side (ray hits on the
-            other, dorsal side are discarded by the contact stage).
-        contact_vertices: (C,) long, the contact zones (finger pads and palm, the ObMan notion).
-        tip_vertices: (5,) long, fingertip vertices (thumb, index, middle, ring, pinky).
-        vertex_part: (V,) long, the joint (0..15) that dominates each vertex's skinning.
-    """
-
-    palmar_faces: torch.Tensor
-    contact_vertices: torch.Tensor
-    tip_vertices: torch.Tensor
-    vertex_part: torch.Tensor
 
 
 def mirror_params(params: HandParams) -> HandParams:
@@ -141,8 +124,6 @@ class HandModel(nn.Module, ABC):
         """Palmar faces, contact zones and fingertips (see :mod:`easyhoi.hand.regions`)."""
         cached = getattr(self, "_regions", None)
         if cached is None:
-            from easyhoi.hand.regions import compute_regions
-
             cached = compute_regions(self)
             object.__setattr__(self, "_regions", cached)
         return cached

@@ -27,14 +27,37 @@ Derivation
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from easyhoi.errors import InvalidInputError
-from easyhoi.hand.base import HandModel, HandRegions
 from easyhoi.structures import HandParams
+
+if TYPE_CHECKING:  # the model type only: base.py imports this module
+    from easyhoi.hand.base import HandModel
+
+
+@dataclass(frozen=True)
+class HandRegions:
+    """Fixed labels on a hand model's closed mesh.
+
+    Attributes:
+        palmar_faces: (F,) bool, True for faces on the palm / finger-pad side (ray hits on the
+            other, dorsal side are discarded by the contact stage).
+        contact_vertices: (C,) long, the contact zones (finger pads and palm, the ObMan notion).
+        tip_vertices: (5,) long, fingertip vertices (thumb, index, middle, ring, pinky).
+        vertex_part: (V,) long, the joint (0..15) that dominates each vertex's skinning.
+    """
+
+    palmar_faces: torch.Tensor
+    contact_vertices: torch.Tensor
+    tip_vertices: torch.Tensor
+    vertex_part: torch.Tensor
+
 
 #: Joint ids of the five digits (base, middle, distal joint), MANO order.
 DIGIT_JOINTS = {"thumb": (13, 14, 15), "index": (1, 2, 3), "middle": (4, 5, 6),
@@ -133,7 +156,7 @@ def compute_regions(model: HandModel) -> HandRegions:
     Args:
         model: a MANO-layout :class:`~easyhoi.hand.base.HandModel` (right hand).
     Returns:
-        :class:`~easyhoi.hand.base.HandRegions` (see the module docstring for the derivation).
+        :class:`HandRegions` (see the module docstring for the derivation).
     """
     verts, faces, weights, joints = rest_geometry(model)
     if weights.shape != (len(verts), 16):

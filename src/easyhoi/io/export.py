@@ -29,7 +29,7 @@ import numpy as np
 from easyhoi.errors import InvalidInputError
 from easyhoi.hoi import HOIResult, check_mesh
 from easyhoi.io.atomic import atomic_write_bytes, atomic_write_text
-from easyhoi.io.hoi_io import mesh_to_ply_bytes
+from easyhoi.io.ply import mesh_to_ply_bytes
 from easyhoi.structures import Camera
 
 __all__ = [

@@ -28,7 +28,8 @@ import torch
 import torch.nn.functional as F
 
 from easyhoi.errors import InvalidInputError
-from easyhoi.hand.base import HandModel, HandRegions
+from easyhoi.hand.base import HandModel
+from easyhoi.hand.regions import HandRegions
 from easyhoi.hoi import HOIInput
 from easyhoi.render.raster import depth_map
 from easyhoi.render.soft import DEFAULT_CULL_EPS, cull_margin, soft_silhouette
