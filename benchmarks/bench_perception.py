@@ -13,6 +13,9 @@ as :func:`easyhoi.perception.chain.segment_hands` does in the product. Reported 
   of the process, which a busy shared machine does not inflate);
 * ``best hyp``: the best IoU any automatic hypothesis of any hand reaches (the ceiling of the
   ranking: what a perfect choice among the region proposals would give, before refinement);
+* ``best_choice`` (``--choices``; ``best_choice_iou_ge_0.5`` in the summary): the best IoU of
+  the object regions the automatic path offers, each picked in turn with ``--object-choice K``
+  (what a user who picks the right one from ``masks.png`` gets);
 * ``IoU 1pt``: the same with one object point, the reference mask's deepest interior point
   (maximum of its distance transform, ``tests/perception_refs.object_point``), as a user's
   single click.
@@ -45,6 +48,7 @@ Usage::
     python benchmarks/bench_perception.py --split check --no-point
     python benchmarks/bench_perception.py --only mow-           # photos whose name has mow-
     python benchmarks/bench_perception.py --click-only          # only the one-point runs
+    python benchmarks/bench_perception.py --no-point --choices  # and each offered region
     python benchmarks/bench_perception.py --resample 0.9        # the photos at 0.9 x their size
 
 ``--resample F`` resamples every photo by ``F`` before anything else (area averaging below 1,
@@ -175,7 +179,7 @@ def best_hypothesis_iou(rgb, hands, segmenter, ref_obj) -> float:
     return best
 
 
-def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
+def run_photo(rgb, ref, detector, segmenter, with_point: bool, choices: bool = False) -> dict:
     from easyhoi.perception.chain import segment_hands
     from easyhoi.perception.prompts import Prompts
 
@@ -210,6 +214,14 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool) -> dict:
         "margin": None if seg is None else seg.meta.get("margin"),
     }
     row["best_hyp"] = best_hypothesis_iou(rgb, hands, segmenter, ref["object"])
+    if choices and seg is not None and present:
+        # each offered region picked in turn (--object-choice K), as a user looking at
+        # masks.png would pick the right one
+        row["best_choice"] = max(
+            iou(segment_hands(rgb, hands, segmenter, prompts=Prompts(object_choice=k))[1]
+                .object_mask, ref["object"])
+            for k in range(1, len(seg.candidates) + 1)
+        )  # fmt: skip
     row["wrong"] = bool(seg is not None and present and row["iou"] < 0.5)
     row["missed"] = bool(present and ref["visibly_held"] and seg is None)
     row["false_object"] = bool(seg is not None and not present)
@@ -345,6 +357,15 @@ def summary(rows: list[dict]) -> dict:
         if held
         else 0.0,
         "missed": float(np.mean([r["missed"] for r in held])) if held else 0.0,
+        **(
+            {
+                "best_choice_iou_ge_0.5": float(
+                    np.mean([r.get("best_choice", r["iou"]) >= 0.5 for r in held])
+                )
+            }  # fmt: skip
+            if held and any("best_choice" in r for r in held)
+            else {}
+        ),
         "wrong": len(wrong),
         "wrong_flagged_low": float(np.mean([r["low"] for r in wrong])) if wrong else 1.0,
         "right_flagged_low": float(np.mean([r["low"] for r in right])) if right else 0.0,
@@ -402,6 +423,12 @@ def main(argv=None) -> int:
         default=1.0,
         help="resample every photo by this factor first (the same scenes at another size)",
     )
+    ap.add_argument(
+        "--choices",
+        action="store_true",
+        help="also pick each object region the automatic path offers (--object-choice K) and "
+        "report the best (best_choice_iou_ge_0.5)",
+    )
     ap.add_argument("--out", type=Path, default=RESULTS / "bench_perception.json")
     args = ap.parse_args(argv)
     if not args.resample > 0:
@@ -444,7 +471,7 @@ def main(argv=None) -> int:
                 flush=True,
             )
             continue
-        row = run_photo(rgb, ref, detector, segmenter, not args.no_point)
+        row = run_photo(rgb, ref, detector, segmenter, not args.no_point, args.choices)
         row["half"] = half
         rows.append(row)
         names.append(name)

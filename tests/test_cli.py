@@ -272,7 +272,8 @@ def test_low_confidence_without_strict_writes_the_result_and_warns(
     assert "done in" in cap.out
     res = json.loads((tmp_path / "o" / "scene" / "result.json").read_text())
     assert res["meta"]["prompts"] == {"object_points": [[60.0, 70.0]], "object_box": None,
-                                      "hand_point": None, "background_points": []}  # fmt: skip
+                                      "hand_point": None, "background_points": [],
+                                      "object_choice": None}  # fmt: skip
     conf = res["meta"]["perception"]["confidence"]
     assert conf["hand"] == {"score": 0.2, "low": True, "reasons": ["few skin pixels"]}
     report = (tmp_path / "o" / "scene" / "report.html").read_text()

@@ -27,9 +27,10 @@ def test_only_low_masks_are_named_with_their_weak_cues_and_fix():
     assert lines == [
         "low confidence in the object mask (score 0.20; weak: touches the border; no contrast): "
         "re-run with --object-point X,Y on the held object (or --object-box X0,Y0,X1,Y1 around "
-        "it)",
+        "it, or --object-choice K for region K of masks.png)",
         "low confidence in the amodal mask (score 0.49; weak: no cue stood out): re-run with "
-        "--object-point X,Y on the held object (or --object-box X0,Y0,X1,Y1 around it)",
+        "--object-point X,Y on the held object (or --object-box X0,Y0,X1,Y1 around it, or "
+        "--object-choice K for region K of masks.png)",
     ]
     assert low_confidence_lines(report(hand=(0.5, ()), object=(0.99, ()))) == []
     assert low_confidence_lines({}) == []
@@ -69,7 +70,8 @@ def test_contact_line_only_for_a_hand_apart_from_its_object():
     assert contact_line(apart) == (
         "the hand does not touch the object in the result (2.0 cm apart): the object mask or the "
         "hand's keypoints place them apart (see masks.png); re-run with --object-point X,Y on the "
-        "held object (or --object-box X0,Y0,X1,Y1 around it)"
+        "held object (or --object-box X0,Y0,X1,Y1 around it, or --object-choice K for region K "
+        "of masks.png)"
     )
     assert contact_line(apart, "batch", prompted=True).endswith(
         "add object_point rows on parts of the object the mask misses, background_point rows on "
@@ -119,7 +121,8 @@ def test_contact_line_says_when_the_object_was_moved_onto_the_hand():
     assert contact_line(met) == (
         "the object was moved 1.7 cm onto the hand, which the photo's masks place beside it: the "
         "object mask or the hand's keypoints may be wrong (see masks.png); re-run with "
-        "--object-point X,Y on the held object (or --object-box X0,Y0,X1,Y1 around it)"
+        "--object-point X,Y on the held object (or --object-box X0,Y0,X1,Y1 around it, or "
+        "--object-choice K for region K of masks.png)"
     )
     # a move within the contact tolerance is a touching hand anyway
     assert contact_line({**met, "object_moved_to_hand_cm": 0.3}) is None

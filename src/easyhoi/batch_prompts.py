@@ -10,11 +10,13 @@ Two formats, chosen by the file's extension:
 
 * CSV (``.csv``): a header ``photo,kind,x,y,x1,y1`` (``x1``, ``y1`` optional) and one row per
   prompt; ``kind`` is ``object_point`` (repeatable), ``object_box`` (``x,y`` = top left,
-  ``x1,y1`` = bottom right), ``hand_point`` or ``background_point`` (repeatable)::
+  ``x1,y1`` = bottom right), ``hand_point``, ``background_point`` (repeatable) or
+  ``object_choice`` (``x`` = K, the automatic path's object region K; no ``y``)::
 
       photo,kind,x,y,x1,y1
       IMG_1.jpg,object_point,412,310,,
       IMG_2.jpg,object_box,100,80,380,300
+      IMG_3.jpg,object_choice,2,,,
 
 A photo name is its path inside the batch folder (``sub/IMG_2.jpg``) or, when no two photos
 share it, its file name. Coordinates are pixels of the photo as stored (x right, y down).
@@ -36,7 +38,8 @@ from easyhoi.perception.prompts import Prompts
 
 __all__ = ["load_prompts_file", "parse_prompts_csv", "parse_prompts_json", "photo_size"]
 
-_KINDS = ("object_point", "object_box", "hand_point", "background_point")
+_KINDS = ("object_point", "object_box", "hand_point", "background_point", "object_choice")
+_COLUMNS = {"object_box": ("x", "y", "x1", "y1"), "object_choice": ("x",)}
 _REPEATABLE = {"object_point": "object_points", "background_point": "background_points"}
 
 
@@ -85,8 +88,8 @@ def parse_prompts_csv(text: str, source: str = "prompts file") -> dict[str, Prom
             raise InvalidInputError(
                 f"{where}: kind must be one of {', '.join(_KINDS)}, got {kind!r}"
             )
-        names = ("x", "y", "x1", "y1") if kind == "object_box" else ("x", "y")
-        extra = [n for n in ("x1", "y1") if n not in names and cells.get(n)]
+        names = _COLUMNS.get(kind, ("x", "y"))
+        extra = [n for n in ("y", "x1", "y1") if n not in names and cells.get(n)]
         if extra:
             raise InvalidInputError(f"{where}: a {kind} has no {' or '.join(extra)}")
         try:
@@ -96,6 +99,10 @@ def parse_prompts_csv(text: str, source: str = "prompts file") -> dict[str, Prom
         if any(v != v or v in (float("inf"), float("-inf")) for v in values):
             need = ",".join(names)
             raise InvalidInputError(f"{where}: a {kind} needs numbers {need}, got {row!r}")
+        if kind == "object_choice":
+            if values[0] != int(values[0]) or values[0] < 1:
+                raise InvalidInputError(f"{where}: an object_choice is a whole number >= 1")
+            values = int(values[0])
         entry = found.setdefault(photo, {"object_points": [], "background_points": []})
         if kind in _REPEATABLE:
             entry[_REPEATABLE[kind]].append(values)
@@ -107,7 +114,7 @@ def parse_prompts_csv(text: str, source: str = "prompts file") -> dict[str, Prom
     for photo, entry in found.items():
         try:
             out[photo] = Prompts.from_dict(entry)
-        except InvalidInputError as exc:  # pragma: no cover - the rows were checked above
+        except InvalidInputError as exc:  # an object choice next to object points
             raise InvalidInputError(f"{source}, photo '{photo}': {exc}") from None
     return out
 

@@ -129,8 +129,8 @@ def cmd_reconstruct(args) -> int:
             raise InvalidInputError("--hand-mask/--object-mask/... imports need exactly one photo")
         if prompts is not None:
             raise InvalidInputError(
-                "--object-point/--object-box/--hand-point/--background-point need exactly one "
-                "photo (for many photos: easyhoi batch --prompts FILE)"
+                "--object-point/--object-box/--hand-point/--background-point/--object-choice "
+                "need exactly one photo (for many photos: easyhoi batch --prompts FILE)"
             )
         return _run_batch(args, [Path(p) for p in args.images], None, run)
     image = Path(args.images[0])
@@ -356,15 +356,21 @@ def _sets_seed(overrides: dict) -> bool:
 
 
 def _prompts_from_args(args):
-    """The --object-point/--object-box/--hand-point/--background-point prompts (pixels), or
-    None when none given."""
+    """The --object-point/--object-box/--hand-point/--background-point prompts (pixels) and
+    --object-choice, or None when none given."""
     from easyhoi.perception.prompts import Prompts, parse_numbers
 
     points = tuple(parse_numbers(t, 2, "--object-point") for t in args.object_point or ())
     box = None if args.object_box is None else parse_numbers(args.object_box, 4, "--object-box")
     hand = None if args.hand_point is None else parse_numbers(args.hand_point, 2, "--hand-point")
     bg = tuple(parse_numbers(t, 2, "--background-point") for t in args.background_point or ())
-    prompts = Prompts(object_points=points, object_box=box, hand_point=hand, background_points=bg)
+    prompts = Prompts(
+        object_points=points,
+        object_box=box,
+        hand_point=hand,
+        background_points=bg,
+        object_choice=args.object_choice,
+    )
     if box is not None and not (box[0] < box[2] and box[1] < box[3]):
         raise InvalidInputError(f"--object-box {args.object_box} must have x0 < x1 and y0 < y1")
     return None if prompts.empty else prompts
@@ -615,6 +621,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--background-point", action="append", metavar="X,Y",
                    help="a pixel that is not the held object, where the mask takes in too much "
                    "(repeatable)")  # fmt: skip
+    p.add_argument("--object-choice", type=int, metavar="K",
+                   help="take the automatic path's object region K instead of its first "
+                   "(masks.png numbers them)")  # fmt: skip
     p.add_argument("--strict", action="store_true",
                    help="exit 9, writing nothing, when a mask or the hand's keypoints have low "
                    "confidence")  # fmt: skip
@@ -641,7 +650,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--recursive", action="store_true", help="include subfolders")
     p.add_argument("--prompts", metavar="FILE",
                    help="per-photo prompts: JSON {photo: {object_points, object_box, "
-                   "hand_point, background_points}} or CSV photo,kind,x,y[,x1,y1]")  # fmt: skip
+                   "hand_point, background_points, object_choice}} or CSV "
+                   "photo,kind,x,y[,x1,y1]")  # fmt: skip
     p.add_argument("--strict", action="store_true",
                    help="a photo with a low-confidence mask fails (exit 9)")  # fmt: skip
     p.add_argument("--wait", action="store_true",

@@ -114,4 +114,5 @@ def scale_prompts(prompts, scale: float, size: tuple[int, int]):
         object_box=None if box is None else tuple(v * scale for v in box),
         hand_point=None if prompts.hand_point is None else pt(prompts.hand_point),
         background_points=tuple(pt(p) for p in prompts.background_points),
+        object_choice=prompts.object_choice,
     )

@@ -77,7 +77,9 @@ class Segmentation:
         object_mask: visible held object M_o (after contour-guided filtering); may be empty
             when ``has_object`` is False.
         has_object: False when no held object was found (a legitimate outcome).
-        candidates: object candidate masks, best first (for pictures and debugging).
+        candidates: the object regions a user may pick instead (``--object-choice K`` takes
+            the K-th), the one the automatic path used first; empty when the segmenter
+            offers none or the object was pointed at.
         meta: backend extras.
         confidence: mask name ("hand", "object") ->
             :class:`~easyhoi.perception.confidence.MaskConfidence`; empty when the backend

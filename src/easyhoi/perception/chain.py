@@ -182,7 +182,8 @@ def perceive(
             om = seg.object_mask if pv.object_mask is None else pv.object_mask
             conf = {k: v for k, v in seg.confidence.items()
                     if getattr(pv, f"{k}_mask", None) is None}  # fmt: skip
-            seg = Segmentation(hm, om, bool(om.any()), seg.candidates, seg.meta, conf)
+            choices = seg.candidates if pv.object_mask is None else ()  # none to pick from
+            seg = Segmentation(hm, om, bool(om.any()), choices, seg.meta, conf)
         report.confidence.update(seg.confidence)
     chosen = hands[idx]
     # how sure the detector is of each keypoint, where it can say (the optimizer's keypoint
@@ -265,6 +266,7 @@ def perceive(
             "detection": {k: v for k, v in chosen.meta.items() if _jsonable(v)},
             "perception": report.to_dict(),
             "object_shape": (getattr(mesh, "metadata", None) or {}).get("easyhoi", {}).get("shape"),
+            **_choices_meta(seg),
         },
     )
     return inp, report
@@ -324,16 +326,24 @@ def segment_hands(
         reason) when no hand holds an object.
     """
     run = timed or (lambda _name, fn, *a, **kw: fn(*a, **kw))
+    picked = prompts.object_choice if prompts is not None else None
+    if picked is not None:  # the hand is chosen as without the choice, then its region K taken
+        segment_picked = _prompted(segmenter, name, prompts)
+        prompts = replace(prompts, object_choice=None)
     segment = _prompted(segmenter, name, prompts)
     order, choice = prompted_hand_order(hands, prompts)
     takes_others = "others" in inspect.signature(segmenter.segment).parameters
+
+    def others(i):
+        return {"others": [h for j, h in enumerate(hands) if j != i]} if takes_others else {}
+
     notes, results = [], []
     for i in order:
-        kw = {"others": [h for j, h in enumerate(hands) if j != i]} if takes_others else {}
-        s = run(f"segmentation (hand {i})", segment, image, hands[i], **kw)
-        if s.has_object:
+        s = run(f"segmentation (hand {i})", segment, image, hands[i], **others(i))
+        if s.has_object or picked is not None:
             conf = s.confidence.get("object")
-            results.append((conf.score if conf is not None else 0.0, -i, i, s))
+            score = conf.score if (conf is not None and s.has_object) else -1.0
+            results.append((score, -i, i, s))
         else:
             notes.append(f"hand {i} ({hands[i].side}) holds no object")
     if not results:
@@ -341,7 +351,25 @@ def segment_hands(
     _, _, i, s = max(results, key=lambda r: (r[0], r[1]))
     if choice is None:
         choice = "first holding an object" if len(results) == 1 else "most confident object"
+    if picked is not None:
+        s = run(f"segmentation (hand {i}, object choice {picked})", segment_picked, image,
+                hands[i], **others(i))  # fmt: skip
     return i, s, notes, choice
+
+
+def _choices_meta(seg: Segmentation) -> dict:
+    """``object_choices`` for ``result.json``: the outlines of the object regions that
+    ``--object-choice K`` picks from (the K-th is region K), and ``object_choice``, the one
+    used; nothing when the segmenter offered none (a prompted object, another segmenter)."""
+    if not seg.candidates:
+        return {}
+    from easyhoi.perception.outlines import mask_outlines
+
+    used = seg.meta.get("object_choice") or 1
+    return {
+        "object_choices": [mask_outlines(m) for m in seg.candidates],
+        "object_choice": int(used),
+    }
 
 
 def second_look(detector, image: np.ndarray, hand: HandDetection, confidence, timed=None):
@@ -368,12 +396,19 @@ def second_look(detector, image: np.ndarray, hand: HandDetection, confidence, ti
 def _prompted(segmenter, name: str, prompts: Prompts | None):
     """``segment(image, hand)`` of ``segmenter``, handing it the object and background
     prompts."""
-    if prompts is None or not (prompts.has_object_prompt or prompts.background_points):
+    if prompts is None or not (
+        prompts.has_object_prompt or prompts.background_points or prompts.object_choice
+    ):
         return segmenter.segment
     if "prompts" not in inspect.signature(segmenter.segment).parameters:
         raise InvalidInputError(
             f"the segmenter {name!r} takes no object prompts; choose one that does "
             "(see `easyhoi doctor`) or leave out --object-point/--object-box/--background-point"
+        )
+    if prompts.object_choice is not None and not getattr(segmenter, "offers_choices", False):
+        raise InvalidInputError(
+            f"the segmenter {name!r} offers no numbered object regions; leave out "
+            "--object-choice or use --object-point"
         )
     return functools.partial(segmenter.segment, prompts=prompts)
 

@@ -22,13 +22,15 @@ from easyhoi.errors import LowConfidenceError
 _ADVICE = {
     "cli": {
         "object": "re-run with --object-point X,Y on the held object "
-        "(or --object-box X0,Y0,X1,Y1 around it)",
+        "(or --object-box X0,Y0,X1,Y1 around it, or --object-choice K for region K of "
+        "masks.png)",
         "hand": "re-run with --hand-point X,Y on the hand that holds the object",
         "keypoints": "the hand's pose may be wrong: give --hand-params from another hand "
         "estimator, or use a photo where the hand is seen more clearly",
     },
     "batch": {
-        "object": "give the photo an object_point on the held object in the --prompts file",
+        "object": "give the photo an object_point on the held object in the --prompts file "
+        "(or an object_choice K for region K of masks.png)",
         "hand": "give the photo a hand_point on the hand that holds the object in the --prompts "
         "file",
         "keypoints": "the hand's pose may be wrong: reconstruct the photo alone with "

@@ -4,7 +4,9 @@ A prompt is one gesture on the photo: a point inside the held object (``--object
 repeatable), a box around it (``--object-box X0,Y0,X1,Y1``), a point on the hand that holds it
 (``--hand-point X,Y``) or a point that is not the object (``--background-point X,Y``,
 repeatable: where the mask takes in what is not the object). Coordinates are pixels of the
-original photo, x right, y down.
+original photo, x right, y down. Without a photo viewer at hand, one number does it: the
+automatic path shows its best distinct object regions, numbered, in ``masks.png``, and
+``--object-choice K`` takes region K instead of region 1.
 """
 
 from __future__ import annotations
@@ -25,12 +27,27 @@ class Prompts:
         object_box: (x0, y0, x1, y1) box around the held object, or None.
         hand_point: (x, y) point on the hand that holds the object, or None.
         background_points: ((x, y), ...) points that are not the object.
+        object_choice: K >= 1: the automatic path's K-th object region (1 is its own choice;
+            ``masks.png`` numbers them), or None.
     """
 
     object_points: tuple[tuple[float, float], ...] = ()
     object_box: tuple[float, float, float, float] | None = None
     hand_point: tuple[float, float] | None = None
     background_points: tuple[tuple[float, float], ...] = ()
+    object_choice: int | None = None
+
+    def __post_init__(self):
+        k = self.object_choice
+        if k is None:
+            return
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+            raise InvalidInputError(f"--object-choice must be a whole number >= 1, got {k!r}")
+        if self.has_object_prompt:
+            raise InvalidInputError(
+                "--object-choice picks one of the automatic object regions; it cannot be "
+                "combined with --object-point or --object-box"
+            )
 
     @property
     def empty(self) -> bool:
@@ -39,6 +56,7 @@ class Prompts:
             and self.object_box is None
             and self.hand_point is None
             and not self.background_points
+            and self.object_choice is None
         )
 
     @property
@@ -77,6 +95,7 @@ class Prompts:
             "object_box": None if self.object_box is None else list(self.object_box),
             "hand_point": None if self.hand_point is None else list(self.hand_point),
             "background_points": [list(p) for p in self.background_points],
+            "object_choice": self.object_choice,
         }
 
     @classmethod
@@ -84,7 +103,8 @@ class Prompts:
         """Inverse of :meth:`to_dict`; validates types (raises InvalidInputError)."""
         if not isinstance(d, dict):
             raise InvalidInputError(f"prompts must be a mapping, got {type(d).__name__}")
-        unknown = set(d) - {"object_points", "object_box", "hand_point", "background_points"}
+        keys = {"object_points", "object_box", "hand_point", "background_points", "object_choice"}
+        unknown = set(d) - keys
         if unknown:
             raise InvalidInputError(f"unknown prompt keys: {', '.join(sorted(unknown))}")
         pts = d.get("object_points") or []
@@ -99,6 +119,7 @@ class Prompts:
             object_box=None if box is None else _numbers(box, 4, "object_box"),
             hand_point=None if hp is None else _numbers(hp, 2, "hand_point"),
             background_points=tuple(_numbers(p, 2, "background_points entry") for p in bg),
+            object_choice=d.get("object_choice"),
         )
 
 

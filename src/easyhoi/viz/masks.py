@@ -40,6 +40,7 @@ _BOTH = (40, 160, 70)
 _INPUT_ONLY = (220, 60, 50)
 _RENDER_ONLY = (60, 110, 235)
 _NONE = (245, 245, 245)
+_CHOICE = (255, 200, 0)
 
 
 def rendered_masks(result: HOIResult, height: int, width: int) -> dict[str, np.ndarray]:
@@ -90,10 +91,34 @@ def _compare(input_mask: np.ndarray, rendered: np.ndarray) -> np.ndarray:
     return _PALETTE[code]
 
 
+def choice_panels(photo: np.ndarray, meta: dict, scale: float) -> list[Panel]:
+    """One panel per object region offered for ``--object-choice`` (``meta["object_choices"]``,
+    outlines in photo pixels, :mod:`easyhoi.perception.outlines`), drawn on ``photo`` (the
+    photo resized by ``scale``), the one used marked; [] when there are none."""
+    from easyhoi.perception.outlines import outlines_mask
+
+    choices = meta.get("object_choices") or []
+    used = meta.get("object_choice") or 1
+    panels = []
+    for k, outlines in enumerate(choices, start=1):
+        m = outlines_mask(outlines, photo.shape[:2], scale)
+        img = photo.copy()
+        img[m] = (0.45 * img[m] + 0.55 * np.array(_CHOICE)).astype(np.uint8)
+        title = f"--object-choice {k}" + (" (used)" if k == used else "")
+        panels.append(Panel(img, title))
+    return panels
+
+
 def masks_png(
-    result: HOIResult, inp: HOIInput, full_size: bool = False, context: np.ndarray | None = None
+    result: HOIResult,
+    inp: HOIInput,
+    full_size: bool = False,
+    context: np.ndarray | None = None,
+    choices: list[Panel] | None = None,
 ) -> bytes:
-    """Figure: top row photo and input masks, bottom row overlay and input-vs-rendered maps.
+    """Figure: top row photo and input masks, bottom row overlay and input-vs-rendered maps;
+    with ``choices`` (:func:`choice_panels`), a third row of the object regions a user may
+    pick instead.
 
     Bottom-row colours: green where both masks agree, red for input only, blue for rendered
     only; each title gives the IoU (computed at the input's size). The panels are
@@ -126,4 +151,8 @@ def masks_png(
     title = "Input masks (top) vs masks rendered from the reconstruction (bottom)"
     if context is not None:
         title += ", around the hand and object"
+    if choices:
+        panels += list(choices)
+        legend.append(("object region offered", _CHOICE))
+        title += "; the object regions offered (third row)"
     return png_bytes(compose_grid(panels, 4, PANEL_WIDTH, title=title, legend=legend))

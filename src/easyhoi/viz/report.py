@@ -279,7 +279,13 @@ def render_pictures(
         "stages.png": stages.stages_png(
             zoom_result, zoom_inp.image, hand_model, full_size=full_size, zoomed=True
         ),
-        "masks.png": masks.masks_png(zoom_result, zoom_inp, full_size=full_size, context=context),
+        "masks.png": masks.masks_png(
+            zoom_result,
+            zoom_inp,
+            full_size=full_size,
+            context=context,
+            choices=masks.choice_panels(photo, inp.meta, f),
+        ),  # fmt: skip
         "losses.png": losses_png(result),
     }
 

@@ -1,0 +1,140 @@
+"""``--object-choice K``: the automatic path's numbered object regions, and picking one.
+
+Drawn scene with a known answer: a held disk in the grasp and a second disk against the little
+finger's side. The automatic path takes the held disk; the other one is among the regions it
+offers instead, and picking it gives that disk.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from easyhoi.batch_prompts import parse_prompts_csv, parse_prompts_json
+from easyhoi.cli import main
+from easyhoi.errors import InvalidInputError
+from easyhoi.perception.chain import _choices_meta, segment_hands
+from easyhoi.perception.masks import N_CHOICES, ClassicalHOISegmenter
+from easyhoi.perception.outlines import mask_outlines, outlines_mask
+from easyhoi.perception.prompts import Prompts
+from tests.test_perception_held_object import BLUE, RED, S, det, grasped_disk, scene_of
+from tests.test_perception_masks import iou
+
+
+def two_disks():
+    """(photo, the held disk, the other disk), the disks without the hand's pixels."""
+    disk = grasped_disk()
+    yy, xx = np.mgrid[0:S, 0:S]
+    other = (xx - 180) ** 2 + (yy - 150) ** 2 < 20**2
+    img, hand = scene_of([(other, RED), (disk, BLUE)])
+    return img, disk & ~hand, other & ~hand
+
+
+def test_prompts_check_the_choice():
+    assert Prompts(object_choice=2).object_choice == 2 and not Prompts(object_choice=2).empty
+    assert not Prompts(object_choice=2).has_object_prompt
+    for bad in (0, -1, True, 2.5, "2"):
+        with pytest.raises(InvalidInputError, match="whole number >= 1"):
+            Prompts(object_choice=bad)
+    with pytest.raises(InvalidInputError, match="cannot be combined"):
+        Prompts(object_points=((1.0, 2.0),), object_choice=2)
+    with pytest.raises(InvalidInputError, match="cannot be combined"):
+        Prompts(object_box=(0.0, 0.0, 4.0, 4.0), object_choice=1)
+    p = Prompts(hand_point=(3.0, 3.0), object_choice=3)
+    assert Prompts.from_dict(p.to_dict()) == p
+
+
+def test_sidecar_files_carry_the_choice():
+    assert parse_prompts_json('{"a.jpg": {"object_choice": 2}}')["a.jpg"] == Prompts(
+        object_choice=2
+    )
+    csv = "photo,kind,x,y,x1,y1\na.jpg,object_choice,3,,,\nb.jpg,hand_point,4,5,,\n"
+    got = parse_prompts_csv(csv)
+    assert got["a.jpg"] == Prompts(object_choice=3)
+    assert got["b.jpg"] == Prompts(hand_point=(4.0, 5.0))
+    for row, msg in (
+        ("a.jpg,object_choice,0,,,", "whole number"),
+        ("a.jpg,object_choice,1.5,,,", "whole number"),
+        ("a.jpg,object_choice,2,7,,", "has no y"),
+        ("a.jpg,object_choice,,,,", "needs numbers x"),
+    ):
+        with pytest.raises(InvalidInputError, match=msg):
+            parse_prompts_csv("photo,kind,x,y,x1,y1\n" + row + "\n")
+    with pytest.raises(InvalidInputError, match="cannot be combined"):
+        parse_prompts_csv("photo,kind,x,y\na.jpg,object_choice,2\na.jpg,object_point,4,5\n")
+
+
+def test_the_choices_are_distinct_regions_the_automatic_one_first():
+    img, disk, other = two_disks()
+    seg = ClassicalHOISegmenter(seed=0).segment(img, det())
+    assert seg.has_object and iou(seg.object_mask, disk) > 0.7
+    ch = seg.candidates
+    assert 2 <= len(ch) <= N_CHOICES
+    assert np.array_equal(ch[0], seg.object_mask)  # region 1 is what the automatic path used
+    for a in range(len(ch)):
+        for b in range(a + 1, len(ch)):
+            assert iou(ch[a], ch[b]) < 0.6
+    assert max(iou(m, other) for m in ch[1:]) > 0.9  # the other disk is offered
+
+
+def test_picking_a_region_gives_it_and_region_1_is_the_automatic_result():
+    img, disk, other = two_disks()
+    seg = ClassicalHOISegmenter(seed=0)
+    auto = seg.segment(img, det())
+    one = seg.segment(img, det(), prompts=Prompts(object_choice=1))
+    assert np.array_equal(one.object_mask, auto.object_mask)
+    k = 1 + int(np.argmax([iou(m, other) for m in auto.candidates]))
+    assert k > 1
+    got = seg.segment(img, det(), prompts=Prompts(object_choice=k))
+    assert got.has_object and got.meta["prompted"] and got.meta["object_choice"] == k
+    assert iou(got.object_mask, other) > 0.7 and iou(got.object_mask, disk) < 0.1
+    # the same regions are offered whichever is picked, and the same pick gives the same mask
+    assert all(np.array_equal(a, b) for a, b in zip(got.candidates, auto.candidates, strict=True))
+    again = seg.segment(img, det(), prompts=Prompts(object_choice=k))
+    assert np.array_equal(again.object_mask, got.object_mask)
+    with pytest.raises(InvalidInputError, match=f"found {len(auto.candidates)} object region"):
+        seg.segment(img, det(), prompts=Prompts(object_choice=len(auto.candidates) + 1))
+
+
+def test_segment_hands_picks_in_the_automatically_chosen_hand():
+    img, disk, other = two_disks()
+    seg = ClassicalHOISegmenter(seed=0)
+    i, auto, _, _ = segment_hands(img, [det()], seg)
+    k = 1 + int(np.argmax([iou(m, other) for m in auto.candidates]))
+    j, got, _, _ = segment_hands(img, [det()], seg, prompts=Prompts(object_choice=k))
+    assert i == j == 0 and iou(got.object_mask, other) > 0.7
+    meta = _choices_meta(got)
+    assert meta["object_choice"] == k and len(meta["object_choices"]) == len(auto.candidates)
+
+    class NoChoices:
+        def segment(self, image, hand, prompts=None):
+            return auto
+
+    with pytest.raises(InvalidInputError, match="offers no numbered object regions"):
+        segment_hands(img, [det()], NoChoices(), prompts=Prompts(object_choice=2))
+
+
+def test_outlines_round_trip():
+    yy, xx = np.mgrid[0:120, 0:160]
+    m = ((xx - 50) ** 2 + (yy - 60) ** 2 < 30**2) | ((np.abs(xx - 130) < 15) & (yy > 20))
+    outlines = mask_outlines(m)
+    assert len(outlines) == 2 and all(isinstance(v, int) for p in outlines for q in p for v in q)
+    assert iou(outlines_mask(outlines, m.shape), m) > 0.97
+    half = outlines_mask(mask_outlines(m, 0.5), (60, 80))
+    assert abs(half.sum() - m.sum() / 4) < 0.05 * m.sum() / 4
+    assert mask_outlines(np.zeros((5, 5), bool)) == []
+
+
+def test_cli_refuses_a_bad_choice_before_any_work(tmp_path, capsys):
+    img, _, _ = two_disks()
+    photo = tmp_path / "p.png"
+    import cv2
+
+    cv2.imwrite(str(photo), img[:, :, ::-1])
+    out = tmp_path / "out"
+    rc = main(["reconstruct", str(photo), "--out", str(out), "--object-choice", "0"])
+    assert rc == 2 and "whole number >= 1" in capsys.readouterr().err
+    rc = main(["reconstruct", str(photo), "--out", str(out), "--object-choice", "2",
+               "--object-point", "10,10"])  # fmt: skip
+    assert rc == 2 and "cannot be combined" in capsys.readouterr().err
+    assert not out.exists()
