@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from easyhoi.perception.prompts import Prompts
 from tests.test_app import load_screenshot_script, photo
 
 pytestmark = pytest.mark.slow
@@ -250,6 +251,18 @@ def test_click_on_the_photo_adds_a_point_previews_the_mask_and_runs_with_it(serv
     assert "Low confidence in the object mask" in warn.text
     assert "click on the held object in the photo" in warn.text
     assert PROMPTS_SEEN[-1] is None
+
+    # Object region: another of the automatic path's regions, without coordinates
+    from selenium.webdriver.common.keys import Keys
+
+    box = driver.find_element(By.CSS_SELECTOR, "#object_region input")
+    box.click()
+    box.send_keys(Keys.CONTROL, "a")
+    box.send_keys("3", Keys.ENTER)  # the menu filters to the entry "3", Enter takes it
+    wait.until(lambda d: "object region 3" in text("#prompt_text"))
+    driver.find_element(By.CSS_SELECTOR, "#run").click()
+    wait.until(lambda d: len(PROMPTS_SEEN) == 3)
+    assert PROMPTS_SEEN[-1] == Prompts(object_choice=3)
     driver.save_screenshot(str(tmp_path / "page.png"))
 
 

@@ -33,6 +33,7 @@ def test_clicks_on_the_thumbnail_become_photo_pixels(tmp_path):
         "object_points": [],
         "hand_point": None,
         "background_points": [],
+        "object_choice": None,
         "photo_size": [1000, 800],
     }
     assert ap.state_prompts(state) is None and "Click on the held object" in ap.prompt_text(state)

@@ -14,9 +14,9 @@ from easyhoi.batch_prompts import parse_prompts_csv, parse_prompts_json
 from easyhoi.cli import main
 from easyhoi.errors import InvalidInputError
 from easyhoi.perception.chain import _choices_meta, segment_hands
-from easyhoi.perception.masks import N_CHOICES, ClassicalHOISegmenter
+from easyhoi.perception.masks import ClassicalHOISegmenter
 from easyhoi.perception.outlines import mask_outlines, outlines_mask
-from easyhoi.perception.prompts import Prompts
+from easyhoi.perception.prompts import N_CHOICES, Prompts
 from tests.test_perception_held_object import BLUE, RED, S, det, grasped_disk, scene_of
 from tests.test_perception_masks import iou
 
@@ -138,3 +138,44 @@ def test_cli_refuses_a_bad_choice_before_any_work(tmp_path, capsys):
                "--object-point", "10,10"])  # fmt: skip
     assert rc == 2 and "cannot be combined" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_the_web_page_state_carries_the_choice():
+    from easyhoi import app_prompts as ap
+
+    labels = ap.choice_labels()
+    assert labels[0] == "1 (automatic)" and len(labels) == N_CHOICES
+    s = ap.new_state((100, 80))
+    assert ap.state_prompts(s) is None
+    s2 = ap.set_choice(s, "3")
+    assert ap.state_prompts(s2) == Prompts(object_choice=3)
+    assert "object region 3" in ap.prompt_text(s2)
+    assert ap.state_prompts(ap.set_choice(s2, labels[0])) is None
+    # object points replace the automatic path: the region then does not count, and the page
+    # says so
+    s3 = ap.add_click(s2, "object point", (10, 10), (100, 80))
+    assert ap.state_prompts(s3) == Prompts(object_points=((10.5, 10.5),))
+    assert "counts only without object points" in ap.prompt_text(s3)
+
+
+def test_the_mask_preview_shows_the_chosen_region(monkeypatch):
+    from dataclasses import replace
+
+    from easyhoi import app_prompts as ap
+    from easyhoi.config import get_preset
+    from easyhoi.perception import base
+
+    class OneHand:
+        def detect(self, image):
+            return [det()]
+
+    monkeypatch.setitem(base._REGISTRY["hand"], "one-drawn-hand", OneHand)
+    cfg = get_preset("fast")
+    cfg = replace(cfg, perception=replace(cfg.perception, hand="one-drawn-hand"))
+    img, disk, other = two_disks()
+    _, obj, facts = ap.segment_for_preview(img, cfg, None)
+    assert iou(obj, disk) > 0.7 and facts["object_regions"] >= 2
+    auto = ClassicalHOISegmenter(seed=0).segment(img, det())
+    k = 1 + int(np.argmax([iou(m, other) for m in auto.candidates]))
+    _, obj, facts = ap.segment_for_preview(img, cfg, Prompts(object_choice=k))
+    assert iou(obj, other) > 0.7

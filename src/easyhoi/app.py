@@ -48,8 +48,9 @@ _INTRO = """\
 # EasyHOI: hand + held object from one photo
 Upload a photo of a hand holding an object and press **Run**. If the wrong object is found,
 click on the held object in the photo (add more clicks for more of it; *background point*
-marks what the mask takes in that is not the object; *hand point* marks the holding hand), check
-it with **Show mask**, and run again. The reconstruction runs on this
+marks what the mask takes in that is not the object; *hand point* marks the holding hand), or
+pick another of the automatic path's *object regions* (numbered in `masks.png`), check it with
+**Show mask**, and run again. The reconstruction runs on this
 machine's CPU: about half a minute with the *fast* preset on 2 cores, several minutes with
 *paper*. Same photo, points, preset and seed give the same result.
 """
@@ -120,7 +121,7 @@ def build_app(
         rgb, err, state = ap.load_preview(path, max_upload_mb)
         return (
             rgb, gr.update(value=f"**{err}**" if err else "", visible=bool(err)), state,
-            ap.prompt_text(state), None, "",
+            ap.prompt_text(state), None, "", ap.choice_labels()[0],
         )  # fmt: skip
 
     def on_click(path, state, mode, evt: gr.SelectData):
@@ -136,7 +137,11 @@ def build_app(
 
     def on_clear(path, state):
         rgb, _, fresh = ap.load_preview(path, max_upload_mb)
-        return rgb, fresh, ap.prompt_text(fresh), None, ""
+        return rgb, fresh, ap.prompt_text(fresh), None, "", ap.choice_labels()[0]
+
+    def on_choice(state, label):
+        state = ap.set_choice(state, label)
+        return state, ap.prompt_text(state)
 
     def on_mask(path, state, preset_name):
         from easyhoi.config import get_preset
@@ -188,6 +193,11 @@ def build_app(
                     with gr.Column():
                         show_mask = gr.Button("Show mask", elem_id="show_mask")
                         clear = gr.Button("Clear points", elem_id="clear_points")
+                region = gr.Dropdown(
+                    choices=ap.choice_labels(), value=ap.choice_labels()[0],
+                    label="Object region (the automatic path's; 'Show mask' shows the one used)",
+                    elem_id="object_region",
+                )  # fmt: skip
                 prompt_line = gr.Markdown(ap.prompt_text(None), elem_id="prompt_text")
                 mask_view = gr.Image(label="Mask preview (object green, hand orange)",
                                      interactive=False, height=240, elem_id="mask_preview",
@@ -222,12 +232,14 @@ def build_app(
                                             interactive=False, elem_id="downloads")  # fmt: skip
         # change, not upload: an example photo fills the file box without an upload
         photo.change(on_upload, photo,
-                     [preview, error, prompt_state, prompt_line, mask_view, mask_line],
+                     [preview, error, prompt_state, prompt_line, mask_view, mask_line, region],
+                     queue=False)  # fmt: skip
+        region.input(on_choice, [prompt_state, region], [prompt_state, prompt_line],
                      queue=False)  # fmt: skip
         preview.select(on_click, [photo, prompt_state, mode], [preview, prompt_state, prompt_line],
                        queue=False)  # fmt: skip
         clear.click(on_clear, [photo, prompt_state],
-                    [preview, prompt_state, prompt_line, mask_view, mask_line],
+                    [preview, prompt_state, prompt_line, mask_view, mask_line, region],
                     queue=False)  # fmt: skip
         show_mask.click(on_mask, [photo, prompt_state, preset_box], [mask_view, mask_line],
                         concurrency_limit=1, api_name="mask_preview")  # fmt: skip

@@ -30,8 +30,10 @@ __all__ = [
     "load_preview",
     "mask_preview",
     "new_state",
+    "choice_labels",
     "prompt_text",
     "segment_for_preview",
+    "set_choice",
     "state_prompts",
 ]
 
@@ -47,13 +49,37 @@ MAX_OBJECT_POINTS = 16
 _OBJECT_COLOUR = (40, 220, 90)
 _HAND_COLOUR = (255, 140, 0)
 _BACKGROUND_COLOUR = (230, 40, 60)
-_STATE_PROMPTS = ("object_points", "hand_point", "background_points")
+_STATE_PROMPTS = ("object_points", "hand_point", "background_points")  # object_choice: see
+# state_prompts
 
 
 def new_state(photo_size: tuple[int, int] | None = None) -> dict:
     """An empty prompt state for a photo of ``photo_size`` (width, height) as stored."""
     size = None if photo_size is None else [int(photo_size[0]), int(photo_size[1])]
-    return {"object_points": [], "hand_point": None, "background_points": [], "photo_size": size}
+    return {
+        "object_points": [],
+        "hand_point": None,
+        "background_points": [],
+        "object_choice": None,
+        "photo_size": size,
+    }
+
+
+def choice_labels() -> list[str]:
+    """The page's menu of object regions: the automatic choice, then regions 2 to
+    :data:`~easyhoi.perception.prompts.N_CHOICES` (``--object-choice K``)."""
+    from easyhoi.perception.prompts import N_CHOICES
+
+    return ["1 (automatic)"] + [str(k) for k in range(2, N_CHOICES + 1)]
+
+
+def set_choice(state: dict | None, label: str | None) -> dict:
+    """The state with the object region of menu entry ``label`` (:func:`choice_labels`);
+    the automatic entry (or none) clears it."""
+    state = dict(state or new_state())
+    k = int(str(label).split()[0]) if label else 1
+    state["object_choice"] = None if k == 1 else k
+    return state
 
 
 def load_preview(path, max_upload_mb: float) -> tuple[np.ndarray | None, str, dict]:
@@ -108,10 +134,14 @@ def add_click(state: dict | None, mode: str, xy, shown_size: tuple[int, int]) ->
 
 
 def state_prompts(state: dict | None) -> Prompts | None:
-    """The :class:`Prompts` of a state (photo pixels), or None when there is none."""
+    """The :class:`Prompts` of a state (photo pixels), or None when there is none. Object
+    points replace the automatic path, so a region chosen from it counts only without them."""
     if not state:
         return None
-    p = Prompts.from_dict({k: state.get(k) for k in _STATE_PROMPTS})
+    d = {k: state.get(k) for k in _STATE_PROMPTS}
+    if not state.get("object_points"):
+        d["object_choice"] = state.get("object_choice")
+    p = Prompts.from_dict(d)
     return None if p.empty else p
 
 
@@ -132,6 +162,10 @@ def prompt_text(state: dict | None) -> str:
     if p.background_points:
         pts = ", ".join(f"({x:.0f}, {y:.0f})" for x, y in p.background_points)
         parts.append(f"not the object: {pts}")
+    if p.object_choice is not None:
+        parts.append(f"object region {p.object_choice}")
+    elif state.get("object_choice") and p.object_points:
+        parts.append("(the object region chosen counts only without object points)")
     return "; ".join(parts)
 
 
@@ -198,7 +232,7 @@ def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
     """
     from easyhoi.device import resolve_device
     from easyhoi.errors import NoHandError, NoObjectError
-    from easyhoi.perception.chain import _backend, _prompted, prompted_hand_order
+    from easyhoi.perception.chain import _backend, segment_hands
 
     pc = config.perception
     H, W = rgb.shape[:2]
@@ -208,15 +242,14 @@ def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
     hands = _backend(pc, "hand", pc.hand, seed, device).detect(rgb)
     if not hands:
         raise NoHandError("no hand found in the photo")
-    segment = _prompted(segmenter, pc.segmenter, prompts)
-    order, _ = prompted_hand_order(hands, prompts)
-    for i in order:
-        seg = segment(rgb, hands[i])
-        if seg.has_object:
-            facts = {"hands_found": len(hands), "hand_index": i, "side": hands[i].side,
-                     "confidence": {k: v.to_dict() for k, v in seg.confidence.items()}}  # fmt: skip
-            return seg.hand_mask, seg.object_mask, facts
-    raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
+    i, seg, _, _ = segment_hands(rgb, hands, segmenter, prompts, name=pc.segmenter)
+    if seg is None:
+        raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
+    facts = {"hands_found": len(hands), "hand_index": i, "side": hands[i].side,
+             "confidence": {k: v.to_dict() for k, v in seg.confidence.items()}}  # fmt: skip
+    if seg.candidates:
+        facts["object_regions"] = len(seg.candidates)
+    return seg.hand_mask, seg.object_mask, facts
 
 
 def mask_preview(
@@ -259,6 +292,9 @@ def mask_preview(
     conf = facts.get("confidence") or {}
     if conf:
         text += "; confidence " + ", ".join(f"{k} {c['score']:.2f}" for k, c in conf.items())
+    if facts.get("object_regions"):
+        text += (f"; {facts['object_regions']} object regions to choose from "
+                 "('Object region')")  # fmt: skip
     prompted = prompts is not None and prompts.has_object_prompt
     warnings = low_confidence_lines({"confidence": conf}, "demo", prompted)
     text += "." + "".join(f" {w[0].upper()}{w[1:]}." for w in warnings)

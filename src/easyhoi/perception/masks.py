@@ -29,7 +29,7 @@ from easyhoi.io.image import check_image
 from easyhoi.perception import held_object as ho
 from easyhoi.perception import not_object, ranker
 from easyhoi.perception.base import HandDetection, Segmentation, register
-from easyhoi.perception.prompts import Prompts
+from easyhoi.perception.prompts import N_CHOICES, Prompts
 from easyhoi.perception.proposals import Proposals, propose, propose_scales
 from easyhoi.perception.seg_confidence import hand_confidence, object_confidence
 from easyhoi.perception.skin import (  # noqa: F401  (re-exported: the masks' drawing helpers)
@@ -127,12 +127,6 @@ class _Work:
         """Whether the photo goes on beyond the crop's left, top, right and bottom side."""
         (x0, y0, x1, y1), (H, W) = self.crop, self.full_shape
         return (x0 > 0, y0 > 0, x1 < W, y1 < H)
-
-
-#: Object regions the automatic path offers for ``--object-choice`` (the chosen one included).
-#: On the development photos the chosen one reaches IoU >= 0.5 on 32 %, the best of four on
-#: 42 % (docs/prompts.md).
-N_CHOICES = 4
 
 
 @register("segmenter", "classical")
