@@ -179,3 +179,21 @@ def test_the_mask_preview_shows_the_chosen_region(monkeypatch):
     k = 1 + int(np.argmax([iou(m, other) for m in auto.candidates]))
     _, obj, facts = ap.segment_for_preview(img, cfg, Prompts(object_choice=k))
     assert iou(obj, other) > 0.7
+
+
+def test_masks_png_numbers_the_offered_regions():
+    from easyhoi.viz.masks import choice_panels
+
+    photo = np.full((60, 80, 3), 100, np.uint8)
+    a = np.zeros((120, 160), bool)
+    a[20:60, 20:60] = True
+    b = np.zeros((120, 160), bool)
+    b[70:110, 100:150] = True
+    meta = {"object_choices": [mask_outlines(a), mask_outlines(b)], "object_choice": 2}
+    panels = choice_panels(photo, meta, 0.5)  # the photo shown at half its size
+    assert [p.title for p in panels] == ["--object-choice 1", "--object-choice 2 (used)"]
+    for panel, m in zip(panels, (a, b), strict=True):
+        small = m[::2, ::2]
+        tinted = np.any(panel.image != 100, axis=-1)
+        assert iou(tinted, small) > 0.9
+    assert choice_panels(photo, {}, 0.5) == []

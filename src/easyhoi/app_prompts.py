@@ -26,11 +26,11 @@ __all__ = [
     "MODES",
     "PREVIEW_SIDE",
     "add_click",
+    "choice_labels",
     "draw_prompts",
     "load_preview",
     "mask_preview",
     "new_state",
-    "choice_labels",
     "prompt_text",
     "segment_for_preview",
     "set_choice",
@@ -49,8 +49,8 @@ MAX_OBJECT_POINTS = 16
 _OBJECT_COLOUR = (40, 220, 90)
 _HAND_COLOUR = (255, 140, 0)
 _BACKGROUND_COLOUR = (230, 40, 60)
-_STATE_PROMPTS = ("object_points", "hand_point", "background_points")  # object_choice: see
-# state_prompts
+#: The state's prompts taken as they are (the object region: see :func:`state_prompts`).
+_STATE_PROMPTS = ("object_points", "hand_point", "background_points")
 
 
 def new_state(photo_size: tuple[int, int] | None = None) -> dict:
