@@ -292,5 +292,11 @@ def test_help_lists_the_strict_exit_code(capsys):
     with pytest.raises(SystemExit):
         main(["reconstruct", "--help"])
     out = capsys.readouterr().out
-    for flag in ("--object-point X,Y", "--object-box X0,Y0,X1,Y1", "--hand-point X,Y", "--strict"):
+    for flag in (
+        "--object-point X,Y",
+        "--object-box X0,Y0,X1,Y1",
+        "--hand-point X,Y",
+        "--strict",
+        "--object-choice K",
+    ):
         assert flag in out

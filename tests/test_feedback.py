@@ -127,3 +127,14 @@ def test_contact_line_says_when_the_object_was_moved_onto_the_hand():
     # a move within the contact tolerance is a touching hand anyway
     assert contact_line({**met, "object_moved_to_hand_cm": 0.3}) is None
     assert contact_line({**met, "object_moved_to_hand_cm": None}) is None
+
+
+def test_strict_names_no_numbered_region_as_it_writes_no_masks_png():
+    from easyhoi.perception.feedback import low_confidence_error
+
+    rep = report(object=(0.2, ("touches the border",)))
+    (line,) = low_confidence_lines(rep)
+    assert "--object-choice K for region K of masks.png" in line
+    err = str(low_confidence_error(rep))
+    assert "--object-point X,Y on the held object" in err and "masks.png" not in err
+    assert err.endswith("(--strict: no result written)")

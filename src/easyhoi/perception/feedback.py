@@ -43,6 +43,12 @@ _ADVICE = {
         "clearly",
     },
 }
+# --strict writes nothing, so there is no masks.png to pick a numbered region from
+_ADVICE["strict"] = {
+    **_ADVICE["cli"],
+    "object": "re-run with --object-point X,Y on the held object (or --object-box "
+    "X0,Y0,X1,Y1 around it)",
+}
 _ADVICE_MORE = {
     "cli": "add --object-point X,Y on parts of the object the mask misses, --background-point "
     "X,Y on what it takes in beyond the object, or an --object-box",
@@ -51,11 +57,13 @@ _ADVICE_MORE = {
     "demo": "click on the parts of the object the mask misses (or, as background points, on "
     "what it takes in beyond the object) and run again",
 }
+_ADVICE_MORE["strict"] = _ADVICE_MORE["cli"]
 
 
 def advice(mask: str, where: str = "cli", prompted: bool = False) -> str:
     """What to do about a weak ``mask`` ("hand", "object", "amodal", or the hand's
-    "keypoints"), for ``where``.
+    "keypoints"), for ``where``: "cli", "strict" (the command line when nothing is written,
+    so no picture to pick a region from), "batch" or "demo".
 
     ``prompted``: the object was already pointed at (then: more object or background points,
     or a box).
@@ -83,7 +91,7 @@ def low_confidence_lines(perception: dict, where: str = "cli", prompted: bool = 
 
 def low_confidence_error(perception: dict, prompted: bool = False) -> LowConfidenceError:
     """The :class:`LowConfidenceError` of ``--strict`` for a report with low-confidence masks."""
-    lines = low_confidence_lines(perception, "cli", prompted)
+    lines = low_confidence_lines(perception, "strict", prompted)
     return LowConfidenceError("; ".join(lines) + " (--strict: no result written)")
 
 
