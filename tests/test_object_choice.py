@@ -197,3 +197,32 @@ def test_masks_png_numbers_the_offered_regions():
         tinted = np.any(panel.image != 100, axis=-1)
         assert iou(tinted, small) > 0.9
     assert choice_panels(photo, {}, 0.5) == []
+
+
+def test_the_mask_preview_outlines_the_regions_numbered(tmp_path):
+    from PIL import Image
+
+    from easyhoi import app_prompts as ap
+    from easyhoi.config import get_preset
+
+    src = tmp_path / "p.png"
+    Image.fromarray(np.full((200, 300, 3), 100, np.uint8)).save(src)
+    _, _, state = ap.load_preview(src, 20)
+    a = np.zeros((200, 300), bool)
+    a[40:100, 40:120] = True
+    b = np.zeros((200, 300), bool)
+    b[120:180, 180:280] = True
+
+    def segment(rgb, config, prompts):
+        facts = {"hands_found": 1, "hand_index": 0, "side": "right", "confidence": {},
+                 "object_regions": 2, "regions": [a, b]}  # fmt: skip
+        return np.zeros_like(a), a, facts
+
+    shown, text = ap.mask_preview(src, state, get_preset("fast"), segment)
+    assert "2 object regions to choose from, numbered in yellow" in text
+    yellow = np.all(shown == (255, 200, 0), axis=-1)
+    assert yellow[40:100, 38:42].any() and yellow[118:122, 180:280].any()  # the outlines
+    assert not yellow[5:30, 5:30].any() and not yellow[125:140, 190:210].any()  # inside: untouched
+    # a numbered disc at each region's middle (the digit drawn in black on it)
+    assert yellow[65:75, 75:85].any() and (shown[60:80, 70:90] == 0).all(-1).any()
+    assert yellow[145:155, 225:235].any()

@@ -28,6 +28,7 @@ __all__ = [
     "add_click",
     "choice_labels",
     "draw_prompts",
+    "draw_regions",
     "load_preview",
     "mask_preview",
     "new_state",
@@ -49,6 +50,7 @@ MAX_OBJECT_POINTS = 16
 _OBJECT_COLOUR = (40, 220, 90)
 _HAND_COLOUR = (255, 140, 0)
 _BACKGROUND_COLOUR = (230, 40, 60)
+_REGION_COLOUR = (255, 200, 0)
 #: The state's prompts taken as they are (the object region: see :func:`state_prompts`).
 _STATE_PROMPTS = ("object_points", "hand_point", "background_points")
 
@@ -249,6 +251,7 @@ def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
              "confidence": {k: v.to_dict() for k, v in seg.confidence.items()}}  # fmt: skip
     if seg.candidates:
         facts["object_regions"] = len(seg.candidates)
+        facts["regions"] = list(seg.candidates)  # drawn numbered on the preview, not sent
     return seg.hand_mask, seg.object_mask, facts
 
 
@@ -293,9 +296,48 @@ def mask_preview(
     if conf:
         text += "; confidence " + ", ".join(f"{k} {c['score']:.2f}" for k, c in conf.items())
     if facts.get("object_regions"):
-        text += (f"; {facts['object_regions']} object regions to choose from "
-                 "('Object region')")  # fmt: skip
+        text += (f"; {facts['object_regions']} object regions to choose from, numbered in "
+                 "yellow ('Object region')")  # fmt: skip
     prompted = prompts is not None and prompts.has_object_prompt
     warnings = low_confidence_lines({"confidence": conf}, "demo", prompted)
     text += "." + "".join(f" {w[0].upper()}{w[1:]}." for w in warnings)
-    return draw_prompts(thumb, state, (hand, obj)), text
+    shown = draw_prompts(thumb, state, (hand, obj))
+    return draw_regions(shown, facts.get("regions") or ()), text
+
+
+def draw_regions(rgb: np.ndarray, regions) -> np.ndarray:
+    """``rgb`` with the outline of each object region the automatic path offers, numbered as
+    the *Object region* menu numbers them (``--object-choice K``)."""
+    import cv2
+    from PIL import Image, ImageDraw
+
+    if not len(regions):
+        return rgb
+    img = np.ascontiguousarray(np.asarray(rgb, np.uint8).copy())
+    h, w = img.shape[:2]
+    labels = []
+    for k, region in enumerate(regions, start=1):
+        m = _resize_mask(region, (w, h)).astype(np.uint8)
+        contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        if not contours:
+            continue
+        cv2.drawContours(img, contours, -1, _REGION_COLOUR, 2)
+        # the number at the region's deepest pixel (inside it, whatever its shape)
+        depth = cv2.distanceTransform(np.pad(m, 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
+        v, u = np.unravel_index(int(np.argmax(depth)), depth.shape)
+        labels.append((k, float(u), float(v)))
+    pil = Image.fromarray(img)
+    draw = ImageDraw.Draw(pil)
+    r = max(6, round(min(w, h) / 40))
+    placed: list[tuple[float, float]] = []
+    for k, u, v in labels:
+        # a number another one already covers moves down (up at the bottom edge) until free
+        step = 2 * r if v + 2 * r < h - r else -2 * r
+        while any(abs(u - a) < 2 * r and abs(v - b) < 2 * r for a, b in placed):
+            v = float(np.clip(v + step, r, h - r))
+            if v in (r, h - r):
+                break
+        placed.append((u, v))
+        draw.ellipse((u - r, v - r, u + r, v + r), fill=_REGION_COLOUR, outline=(0, 0, 0))
+        draw.text((u, v), str(k), fill=(0, 0, 0), anchor="mm")
+    return np.asarray(pil)
