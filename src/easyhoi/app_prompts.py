@@ -322,10 +322,12 @@ def draw_regions(rgb: np.ndarray, regions) -> np.ndarray:
         if not contours:
             continue
         cv2.drawContours(img, contours, -1, _REGION_COLOUR, 2)
-        # the number at the region's deepest pixel (inside it, whatever its shape)
+        # the number at the region's deepest pixel (inside it, whatever its shape); of a ridge
+        # of nearly as deep pixels (a bar), the one nearest the ridge's middle
         depth = cv2.distanceTransform(np.pad(m, 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
-        v, u = np.unravel_index(int(np.argmax(depth)), depth.shape)
-        labels.append((k, float(u), float(v)))
+        ys, xs = np.nonzero(depth >= depth.max() - 1.0)
+        i = int(np.argmin((xs - xs.mean()) ** 2 + (ys - ys.mean()) ** 2))
+        labels.append((k, float(xs[i]), float(ys[i])))
     pil = Image.fromarray(img)
     draw = ImageDraw.Draw(pil)
     r = max(6, round(min(w, h) / 40))
