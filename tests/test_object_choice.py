@@ -226,3 +226,19 @@ def test_the_mask_preview_outlines_the_regions_numbered(tmp_path):
     # a numbered disc at each region's middle (the digit drawn in black on it)
     assert yellow[65:75, 75:85].any() and (shown[60:80, 70:90] == 0).all(-1).any()
     assert yellow[145:155, 225:235].any()
+
+
+def test_object_prompts_next_to_an_object_mask_are_refused(tmp_path, capsys):
+    import cv2
+
+    img, disk, _ = two_disks()
+    photo, mask = tmp_path / "p.png", tmp_path / "m.png"
+    cv2.imwrite(str(photo), img[:, :, ::-1])
+    cv2.imwrite(str(mask), disk.astype(np.uint8) * 255)
+    out = tmp_path / "out"
+    for extra in (["--object-choice", "2"], ["--object-point", "88,128"],
+                  ["--background-point", "5,5"]):  # fmt: skip
+        rc = main(["reconstruct", str(photo), "--out", str(out), "--object-mask", str(mask),
+                   *extra])  # fmt: skip
+        assert rc == 2 and "would steer nothing" in capsys.readouterr().err
+    assert not out.exists()
