@@ -174,7 +174,7 @@ def test_the_mask_preview_shows_the_chosen_region(monkeypatch):
     cfg = replace(cfg, perception=replace(cfg.perception, hand="one-drawn-hand"))
     img, disk, other = two_disks()
     _, obj, facts = ap.segment_for_preview(img, cfg, None)
-    assert iou(obj, disk) > 0.7 and facts["object_regions"] >= 2
+    assert iou(obj, disk) > 0.7 and len(facts["regions"]) >= 2
     auto = ClassicalHOISegmenter(seed=0).segment(img, det())
     k = 1 + int(np.argmax([iou(m, other) for m in auto.candidates]))
     _, obj, facts = ap.segment_for_preview(img, cfg, Prompts(object_choice=k))
@@ -215,7 +215,7 @@ def test_the_mask_preview_outlines_the_regions_numbered(tmp_path):
 
     def segment(rgb, config, prompts):
         facts = {"hands_found": 1, "hand_index": 0, "side": "right", "confidence": {},
-                 "object_regions": 2, "regions": [a, b]}  # fmt: skip
+                 "regions": [a, b]}  # fmt: skip
         return np.zeros_like(a), a, facts
 
     shown, text = ap.mask_preview(src, state, get_preset("fast"), segment)

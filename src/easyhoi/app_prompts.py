@@ -228,9 +228,10 @@ def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
     """Hand detection and segmentation of the perception chain, with the prompts.
 
     The hand is chosen as in :func:`easyhoi.perception.chain.perceive`
-    (:func:`~easyhoi.perception.chain.prompted_hand_order`). Returns
-    ``(hand mask, object mask, facts)``; facts holds ``hands_found``, ``hand_index``, ``side``
-    and ``confidence`` (mask name -> the JSON form of its MaskConfidence).
+    (:func:`~easyhoi.perception.chain.segment_hands`). Returns
+    ``(hand mask, object mask, facts)``; facts holds ``hands_found``, ``hand_index``, ``side``,
+    ``confidence`` (mask name -> the JSON form of its MaskConfidence) and, when the segmenter
+    offers object regions to choose from, ``regions`` ((H, W) bool masks, region 1 first).
     """
     from easyhoi.device import resolve_device
     from easyhoi.errors import NoHandError, NoObjectError
@@ -250,7 +251,6 @@ def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
     facts = {"hands_found": len(hands), "hand_index": i, "side": hands[i].side,
              "confidence": {k: v.to_dict() for k, v in seg.confidence.items()}}  # fmt: skip
     if seg.candidates:
-        facts["object_regions"] = len(seg.candidates)
         facts["regions"] = list(seg.candidates)  # drawn numbered on the preview, not sent
     return seg.hand_mask, seg.object_mask, facts
 
@@ -295,14 +295,15 @@ def mask_preview(
     conf = facts.get("confidence") or {}
     if conf:
         text += "; confidence " + ", ".join(f"{k} {c['score']:.2f}" for k, c in conf.items())
-    if facts.get("object_regions"):
-        text += (f"; {facts['object_regions']} object regions to choose from, numbered in "
+    regions = facts.get("regions") or ()
+    if regions:
+        text += (f"; {len(regions)} object regions to choose from, numbered in "
                  "yellow ('Object region')")  # fmt: skip
     prompted = prompts is not None and prompts.has_object_prompt
     warnings = low_confidence_lines({"confidence": conf}, "demo", prompted)
     text += "." + "".join(f" {w[0].upper()}{w[1:]}." for w in warnings)
     shown = draw_prompts(thumb, state, (hand, obj))
-    return draw_regions(shown, facts.get("regions") or ()), text
+    return draw_regions(shown, regions), text
 
 
 def draw_regions(rgb: np.ndarray, regions) -> np.ndarray:

@@ -124,13 +124,6 @@ def cmd_reconstruct(args) -> int:
     # after perception) are resolved once, before any photo is read
     run = run_from_args(args)
     provided = _provided_from_args(args)
-    if provided is not None and provided.object_mask is not None and prompts is not None:
-        if prompts.has_object_prompt or prompts.background_points or prompts.object_choice:
-            raise InvalidInputError(
-                "--object-mask replaces the object segmentation: --object-point, --object-box, "
-                "--background-point and --object-choice would steer nothing (only --hand-point "
-                "still applies)"
-            )
     if len(args.images) > 1:
         if provided is not None:
             raise InvalidInputError("--hand-mask/--object-mask/... imports need exactly one photo")

@@ -110,7 +110,8 @@ def perceive(
         provided: Results of other tools that replace steps.
         prompts: Pixels of ``image`` that steer the segmentation: a hand point picks the hand
             nearest to it; object points and box reach the segmenter when its ``segment``
-            takes a ``prompts`` argument (:class:`InvalidInputError` when it does not).
+            takes a ``prompts`` argument (:class:`InvalidInputError` when it does not, and
+            when ``provided`` holds the object mask that they would steer).
 
     Raises:
         NoHandError: no hand in the photo.
@@ -139,6 +140,12 @@ def perceive(
 
     pv = provided or Provided()
     prompts = None if prompts is None or prompts.empty else prompts.check(W, H)
+    if pv.object_mask is not None and prompts is not None and prompts.steers_object:
+        raise InvalidInputError(
+            "--object-mask replaces the object segmentation: --object-point, --object-box, "
+            "--background-point and --object-choice would steer nothing (only --hand-point "
+            "still applies)"
+        )
     for name in ("hand_mask", "object_mask", "amodal_mask"):
         m = getattr(pv, name)
         if m is not None and np.shape(m) != (H, W):
@@ -396,9 +403,7 @@ def second_look(detector, image: np.ndarray, hand: HandDetection, confidence, ti
 def _prompted(segmenter, name: str, prompts: Prompts | None):
     """``segment(image, hand)`` of ``segmenter``, handing it the object and background
     prompts."""
-    if prompts is None or not (
-        prompts.has_object_prompt or prompts.background_points or prompts.object_choice
-    ):
+    if prompts is None or not prompts.steers_object:
         return segmenter.segment
     if "prompts" not in inspect.signature(segmenter.segment).parameters:
         raise InvalidInputError(

@@ -338,12 +338,11 @@ class ClassicalHOISegmenter:
         if hyp is None or not np.isfinite(hyp.scores).any():
             return []
         out = [] if best is None or not obj.any() else [(best, obj)]
+        # the best, when there is one, is among the distinct ones, which overlap it little
         for i in ho.distinct_best(hyp, N_CHOICES + 1):
             if len(out) == N_CHOICES:
                 break
-            if best is not None and (
-                i == best or ho.overlap(props, props.regions[i], props.regions[best]) >= 0.6
-            ):
+            if i == best:
                 continue
             m = props.mask(props.regions[i]) & ~excl
             if m.any():

@@ -68,6 +68,14 @@ class Prompts:
     def has_object_prompt(self) -> bool:
         return bool(self.object_points) or self.object_box is not None
 
+    @property
+    def steers_object(self) -> bool:
+        """Whether any prompt steers the object's segmentation: object points, a box,
+        background points or a region choice (a hand point only picks the hand)."""
+        return (
+            self.has_object_prompt or bool(self.background_points) or self.object_choice is not None
+        )
+
     def check(self, width: int, height: int) -> Prompts:
         """Return self if every prompt lies inside a ``width`` x ``height`` photo, else raise."""
         for name, pts in (
