@@ -18,7 +18,9 @@ as :func:`easyhoi.perception.chain.segment_hands` does in the product. Reported 
   (what a user who picks the right one from ``masks.png`` gets);
 * ``IoU 1pt``: the same with one object point, the reference mask's deepest interior point
   (maximum of its distance transform, ``tests/perception_refs.object_point``), as a user's
-  single click.
+  single click;
+* ``IoU box``: the same with an object box (``--object-box``), the reference mask's bounding box
+  grown by 5 % of its width and height on every side, as a user's box drawn round the object.
 
 With ``--click-only`` the summary also gives the share of the one-point masks with IoU < 0.5
 (``point_wrong_flagged_low``) and with IoU >= 0.5 (``point_right_flagged_low``) whose object
@@ -74,6 +76,8 @@ import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+#: How much larger than the object's bounding box a user's box is, per side (of its size)
+BOX_GROW = 0.05
 RESULTS = ROOT / "benchmarks" / "results"
 DATA = ROOT.parent / "shared" / "data"
 
@@ -231,7 +235,29 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool, choices: bool = F
         _, sp, _, _ = segment_hands(rgb, hands, segmenter, prompts=p)
         row["seconds_point"] = time.perf_counter() - t1
         row["iou_point"] = iou(sp.object_mask if sp is not None else None, ref["object"])
+        row["iou_box"] = box_iou(rgb, hands, segmenter, ref["object"])
     return row
+
+
+def object_box(ref_obj: np.ndarray, grow: float = BOX_GROW) -> tuple[float, float, float, float]:
+    """The box a user draws round the reference object: its bounding box grown by ``grow`` of
+    its width and height on every side, inside the photo."""
+    ys, xs = np.nonzero(ref_obj)
+    x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
+    gx, gy = grow * (x1 - x0), grow * (y1 - y0)
+    h, w = ref_obj.shape
+    return (max(0.0, x0 - gx), max(0.0, y0 - gy), min(w - 1.0, x1 + gx), min(h - 1.0, y1 + gy))
+
+
+def box_iou(rgb, hands, segmenter, ref_obj) -> float:
+    """Object IoU with the reference when the object is prompted by :func:`object_box`."""
+    from easyhoi.perception.chain import segment_hands
+    from easyhoi.perception.prompts import Prompts
+
+    _, sb, _, _ = segment_hands(
+        rgb, hands, segmenter, prompts=Prompts(object_box=object_box(ref_obj))
+    )
+    return iou(sb.object_mask if sb is not None else None, ref_obj)
 
 
 def click_ceiling(rgb, hands, segmenter, prompts, ref_obj) -> float | None:
@@ -272,6 +298,7 @@ def run_click(rgb, ref, detector, segmenter) -> dict:
         conf = sp.confidence.get("object") if sp is not None else None
         row["low_point"] = bool(conf is None or conf.low)
         row["ceiling_point"] = click_ceiling(rgb, hands, segmenter, p, ref["object"])
+        row["iou_box"] = box_iou(rgb, hands, segmenter, ref["object"])
         sys.path.insert(0, str(ROOT))
         from tests.perception_refs import background_point, second_point
 
@@ -330,6 +357,9 @@ def click_summary(rows: list[dict]) -> dict:
             r.get("fix") == "background" and r.get("iou_fix", 0.0) < r.get("iou_point", 0.0) - 0.05
             for r in pts
         ),
+        "box_iou_ge_0.5": float(np.mean([r.get("iou_box", 0.0) >= 0.5 for r in pts]))
+        if pts
+        else 0.0,
         "median_seconds_point": float(np.median(secs)) if secs else 0.0,
         # CPU time of the one process: wall time on a machine shared with other work
         "median_cpu_seconds_point": float(np.median(cpu)) if cpu else 0.0,
@@ -371,6 +401,8 @@ def summary(rows: list[dict]) -> dict:
         "right_flagged_low": float(np.mean([r["low"] for r in right])) if right else 0.0,
         "point_iou_ge_0.5": float(np.mean([r["iou_point"] >= 0.5 for r in pts])) if pts else 0.0,
         "point_mean_iou": float(np.mean([r["iou_point"] for r in pts])) if pts else 0.0,
+        "box_iou_ge_0.5": float(np.mean([r["iou_box"] >= 0.5 for r in pts])) if pts else 0.0,
+        "box_mean_iou": float(np.mean([r["iou_box"] for r in pts])) if pts else 0.0,
         "median_seconds": float(np.median([r["seconds"] for r in rows])) if rows else 0.0,
         # CPU time of the one process: wall time on a machine shared with other work
         "median_cpu_seconds": float(np.median([r["cpu_seconds"] for r in rows])) if rows else 0.0,
@@ -380,9 +412,9 @@ def summary(rows: list[dict]) -> dict:
 def table(rows: list[dict], names: list[str]) -> str:
     head = (
         "| photo | half | hand | hand IoU | IoU | best hyp | wrong | missed | conf | low | s "
-        "| IoU 1pt |"
+        "| IoU 1pt | IoU box |"
     )
-    lines = [head, "|" + "---|" * 12]
+    lines = [head, "|" + "---|" * 13]
     for n, r in zip(names, rows, strict=True):
         lines.append(
             f"| {n} | {r['half']} | {'y' if r['hand'] else 'n'} | {r['hand_iou']:.2f} | "
@@ -390,7 +422,8 @@ def table(rows: list[dict], names: list[str]) -> str:
             f"{'y' if r['missed'] else ''} | "
             f"{'-' if r['confidence'] is None else format(r['confidence'], '.2f')} | "
             f"{'y' if r['low'] else ''} | {r['seconds']:.2f} | "
-            f"{format(r['iou_point'], '.2f') if 'iou_point' in r else '-'} |"
+            f"{format(r['iou_point'], '.2f') if 'iou_point' in r else '-'} | "
+            f"{format(r['iou_box'], '.2f') if 'iou_box' in r else '-'} |"
         )
     return "\n".join(lines)
 
@@ -477,7 +510,9 @@ def main(argv=None) -> int:
         names.append(name)
         print(
             f"{name[:44]:44s} {half:5s} iou={row['iou']:.2f} conf={row['confidence']} "
-            f"pt={row.get('iou_point', float('nan')):.2f} {row['seconds']:.2f}s",
+            f"pt={row.get('iou_point', float('nan')):.2f} "
+            f"box={row.get('iou_box', float('nan')):.2f} "
+            f"{row['seconds']:.2f}s",
             file=sys.stderr,
             flush=True,
         )

@@ -105,6 +105,27 @@ def _check_keypoints(hand: HandDetection) -> np.ndarray:
     return kp
 
 
+def _resample(
+    mask: np.ndarray,
+    src: tuple[int, int, int, int],
+    dst: tuple[int, int, int, int],
+    size: tuple[int, int],
+) -> np.ndarray:
+    """``mask``, which covers the photo window ``src`` (x0, y0, x1, y1), sampled at the pixel
+    centres of the window ``dst`` drawn at ``size`` (w, h) (nearest pixel; False where ``dst``
+    leaves ``src``)."""
+    (sx0, sy0, sx1, sy1), (dx0, dy0, dx1, dy1) = src, dst
+    mh, mw = mask.shape
+    xs = dx0 + (np.arange(size[0]) + 0.5) * (dx1 - dx0) / size[0]
+    ys = dy0 + (np.arange(size[1]) + 0.5) * (dy1 - dy0) / size[1]
+    u = np.floor((xs - sx0) * mw / (sx1 - sx0)).astype(np.int64)
+    v = np.floor((ys - sy0) * mh / (sy1 - sy0)).astype(np.int64)
+    ok_u, ok_v = (u >= 0) & (u < mw), (v >= 0) & (v < mh)
+    out = mask[np.ix_(np.clip(v, 0, mh - 1), np.clip(u, 0, mw - 1))].copy()
+    out &= ok_v[:, None] & ok_u[None, :]
+    return out
+
+
 @dataclass(frozen=True)
 class _Work:
     """The working crop of one hand (see :meth:`ClassicalHOISegmenter._setup`)."""
@@ -259,8 +280,9 @@ class ClassicalHOISegmenter:
                 b = to_work(np.reshape(prompts.object_box, (2, 2)))
                 box = (b[0, 0], b[0, 1], b[1, 0], b[1, 1])
             obj, hyp, best = prompted_object(
-                img, props, scene, pts, box, self.iterations, self.seed
-            )
+                img, props, scene, pts, box, self.iterations, self.seed,
+                box_cut=None if prompts.object_box is None else lambda: self._box_cut(image, w),
+            )  # fmt: skip
             has_object = bool(obj.any())
         else:
             props = self._auto_proposals(w)
@@ -425,6 +447,22 @@ class ClassicalHOISegmenter:
             min_size=max(8, int((0.12 * L) ** 2)),
             to_work=to_work,
         )
+
+    def _box_cut(self, image: np.ndarray, w: _Work) -> np.ndarray:
+        """GrabCut of the user's box at the box's own resolution
+        (:func:`easyhoi.perception.prompted.box_grabcut`), in working-crop pixels."""
+        from easyhoi.perception.prompted import box_grabcut
+
+        pts = np.asarray(w.prompts.object_points, np.float64).reshape(-1, 2)
+
+        def excl_at(win, size):
+            return _resample(w.excl, w.crop, win, size)
+
+        win, m = box_grabcut(
+            image, w.prompts.object_box, pts, excl_at, self.click_side, self.iterations, self.seed
+        )
+        h, wd = w.img.shape[:2]
+        return _resample(m, win, w.crop, (wd, h))
 
     def _prompt_proposals(self, w: _Work) -> Proposals:
         """Hypotheses of the prompted paths: one hierarchy at :attr:`segment_scale`."""

@@ -10,8 +10,12 @@ inside the box times share of the box it covers) and ranked by :func:`prompt_sco
 contrast, solidity, size, not another hand). The best distinct levels (up to four) each seed
 GrabCut with the points as sure foreground, the hands and everything outside the box as sure
 background (GrabCut's colour mixtures gather the parts of a textured object the proposals
-split); the refined masks are scored again, the best one is kept, restricted to the parts that
-contain the points.
+split). A fifth candidate is GrabCut of the box alone, seen at the box's own resolution
+(:func:`box_grabcut`). The candidates are scored again, now by how tightly the box fits them
+(:func:`box_tightness`) in place of the size range, and the best one is kept, restricted to the
+parts that contain the points. A box drawn round an object touches it on every side, whatever
+its shape or size relative to the hand; a background point inside the box says the box holds
+more than the object, and then the area fit and the size range score them as for the seeds.
 """
 
 from __future__ import annotations
@@ -51,8 +55,9 @@ PROMPT_WEIGHTS = {
 PROMPT_AREA = (0.02, 4.0)
 
 
-def prompt_score(cues: np.ndarray) -> np.ndarray:
-    """Score of hypotheses containing the prompt (higher: more likely the whole object)."""
+def prompt_score(cues: np.ndarray, sized: bool = True) -> np.ndarray:
+    """Score of hypotheses containing the prompt (higher: more likely the whole object).
+    ``sized=False`` leaves out the size range (a box says how large the object is)."""
     c = {k: cues[:, j] for j, k in enumerate(ho.CUES)}
     lo, hi = PROMPT_AREA
     area = np.maximum(c["area"], 1e-6)
@@ -63,8 +68,27 @@ def prompt_score(cues: np.ndarray) -> np.ndarray:
         + w["skin"] * c["skin"]
         + w["other_hand"] * c["other_hand"]
         + w["border"] * np.minimum(c["border"], 3.0)
-        + w["size"] * np.abs(np.log(area / np.clip(area, lo, hi)))
+        + (w["size"] * np.abs(np.log(area / np.clip(area, lo, hi))) if sized else 0.0)
     )
+
+
+def box_tightness(mask: np.ndarray, box: tuple[int, int, int, int]) -> float:
+    """How well ``mask`` fills the user's box (u0, v0, u1, v1) as an object drawn round by it
+    does: the share of the mask inside the box times the IoU of the mask's bounding box with
+    the box. A box drawn round an object touches it on every side whatever its shape (a pen
+    lying diagonally fills a few per cent of its box and still spans it), so the bounding
+    box, not the area covered, is what the box says."""
+    ys, xs = np.nonzero(mask)
+    if not len(xs):
+        return 0.0
+    u0, v0, u1, v1 = box
+    a0, b0, a1, b1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
+    iw = max(0, min(a1, u1) - max(a0, u0))
+    ih = max(0, min(b1, v1) - max(b0, v0))
+    inter = iw * ih
+    union = (a1 - a0) * (b1 - b0) + (u1 - u0) * (v1 - v0) - inter
+    inside = float(mask[max(0, v0) : max(0, v1), max(0, u0) : max(0, u1)].sum()) / len(xs)
+    return inside * inter / max(union, 1)
 
 
 def prompted_object(
@@ -75,11 +99,14 @@ def prompted_object(
     box: tuple[float, float, float, float],
     iterations: int,
     seed: int,
+    box_cut: Callable[[], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, ho.Hypotheses | None, int | None]:
     """(object mask, hypotheses, index of the chosen one) in working-crop pixels.
 
     ``box`` (u0, v0, u1, v1) and the optional ``points`` (N, 2) (u, v) are in working-crop
-    pixels. Points without a box go to :func:`clicked_object` instead.
+    pixels. Points without a box go to :func:`clicked_object` instead. ``box_cut`` returns one
+    more candidate, GrabCut of the box alone at the box's own resolution (:func:`box_grabcut`,
+    in working-crop pixels); it competes with the proposal-seeded ones by the same score.
     """
     shape = img.shape[:2]
     h, w = shape
@@ -127,6 +154,10 @@ def prompted_object(
     s = np.where(np.isin(np.arange(n), cand), s, -np.inf)
     hyp = ho.Hypotheses(props, cues, s)
     forbidden = forbidden | ~boxmask
+    # A box drawn round an object touches it on every side, which says more than the region's
+    # size or how much of the box it covers; unless the user has marked background inside the
+    # box, which says the box holds more than the object
+    tight = not any((r & boxmask).any() for r in scene.background_rings)
     # the proposals break textured objects into parts: each of the best distinct levels seeds
     # GrabCut (whose colour mixtures gather an object's several colours), and the refined
     # masks are scored again
@@ -134,24 +165,88 @@ def prompted_object(
     seeds = [
         (i, (props.mask(props.regions[i]) | sure) & ~forbidden) for i in ho.distinct_best(hyp, 4)
     ]
-    for i, raw in seeds:
-        m = ho.refine(
-            img, raw, forbidden, iterations, seed, sure=sure, margin=0.5 * L, fallback=False
-        ) | (sure & ~forbidden)
-        m = fill_holes(m) & ~forbidden
+    cands = [
+        (i, ho.refine(img, raw, forbidden, iterations, seed, sure=sure, margin=0.5 * L,
+                      fallback=False))
+        for i, raw in seeds
+    ]  # fmt: skip
+    if box_cut is not None:  # the box's own GrabCut (no proposal: index None)
+        cands.append((None, box_cut()))
+    for i, m in cands:
+        m = fill_holes(m | (sure & ~forbidden)) & ~forbidden
         if sure.any():  # the object is the part that contains the user's points
             m = components_at(m, sure)
-        if encloses(m, scene.background_rings):
+        if not m.any() or encloses(m, scene.background_rings):
             continue
         c = ho.mask_cues(m, scene)[None]
-        a_in = float((m & boxmask).sum())
-        f = (a_in / max(1.0, float(m.sum()))) * (a_in / max(1.0, float(boxmask.sum())))
-        sc = float(prompt_score(c)[0]) + 4.0 * f
+        if tight:
+            f = box_tightness(m, (u0, v0, u1, v1))
+        else:
+            a_in = float((m & boxmask).sum())
+            f = (a_in / max(1.0, float(m.sum()))) * (a_in / max(1.0, float(boxmask.sum())))
+        sc = float(prompt_score(c, sized=not tight)[0]) + 4.0 * f
         if sc > best_s:
             best, obj, best_s = i, m, sc
     if obj is None:  # every refined level took in a background point
         return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), hyp, None
+    if best is None:  # the box's own GrabCut won: it is no proposal, so it stands alone
+        return obj, mask_hypothesis(obj, scene), 0
     return obj, hyp, best
+
+
+def box_grabcut(
+    image: np.ndarray,
+    box: tuple[float, float, float, float],
+    points: np.ndarray,
+    excl_at: Callable[[tuple[int, int, int, int], tuple[int, int]], np.ndarray],
+    side: int,
+    iterations: int,
+    seed: int,
+) -> tuple[tuple[int, int, int, int], np.ndarray]:
+    """GrabCut of a user's box at the box's own resolution: (window, mask in the window).
+
+    The window is the box grown by half its size on every side (GrabCut's background colours
+    come from around the object, not from the whole hand crop), resampled to ``side`` pixels on
+    its longer side, so that a small box is seen at the detail a box drawn on a large object
+    gets. Everything outside the box is sure background, as are the hands (``excl_at(window,
+    (w, h))``: the hands and other excluded pixels resampled to the window); the points
+    (N, 2, photo pixels) are sure object.
+
+    Args:
+        image (np.ndarray): (H, W, 3) uint8 RGB photo.
+        box (tuple): (x0, y0, x1, y1) in photo pixels.
+        points (np.ndarray): (N, 2) object points (x, y) in photo pixels (may be empty).
+        excl_at (Callable): The excluded pixels over a window (x0, y0, x1, y1) at a size (w, h).
+        side (int): Longer side of the resampled window.
+        iterations (int): GrabCut iterations.
+        seed (int): Seed of OpenCV's RNG.
+
+    Returns:
+        tuple: The window (x0, y0, x1, y1) in photo pixels and the (h, w) bool object mask at
+        the window's resampled size.
+    """
+    from easyhoi.perception.skin import grabcut
+
+    H, W = image.shape[:2]
+    bx0, by0, bx1, by1 = box
+    gx, gy = 0.5 * (bx1 - bx0), 0.5 * (by1 - by0)
+    x0, y0 = max(0, int(np.floor(bx0 - gx))), max(0, int(np.floor(by0 - gy)))
+    x1, y1 = min(W, int(np.ceil(bx1 + gx))), min(H, int(np.ceil(by1 + gy)))
+    s = side / max(x1 - x0, y1 - y0)
+    size = (max(8, round((x1 - x0) * s)), max(8, round((y1 - y0) * s)))
+    interp = cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR
+    img = np.ascontiguousarray(cv2.resize(image[y0:y1, x0:x1], size, interpolation=interp))
+    sx, sy = size[0] / (x1 - x0), size[1] / (y1 - y0)
+    init = np.full(img.shape[:2], cv2.GC_BGD, np.uint8)
+    u0, v0 = int(np.floor((bx0 - x0) * sx)), int(np.floor((by0 - y0) * sy))
+    u1, v1 = int(np.ceil((bx1 - x0) * sx)), int(np.ceil((by1 - y0) * sy))
+    init[max(0, v0) : v1, max(0, u0) : u1] = cv2.GC_PR_FGD
+    excl = excl_at((x0, y0, x1, y1), size)
+    init[excl] = cv2.GC_BGD
+    pts = (np.asarray(points, np.float64).reshape(-1, 2) - [x0, y0]) * [sx, sy]
+    sure = _point_disks(init.shape, pts, max(1.0, 0.01 * max(size))) & ~excl
+    init[sure] = cv2.GC_FGD
+    return (x0, y0, x1, y1), grabcut(img, init, iterations, seed) & ~excl
 
 
 def clicked_object(
