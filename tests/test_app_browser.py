@@ -263,6 +263,29 @@ def test_click_on_the_photo_adds_a_point_previews_the_mask_and_runs_with_it(serv
     driver.find_element(By.CSS_SELECTOR, "#run").click()
     wait.until(lambda d: len(PROMPTS_SEEN) == 3)
     assert PROMPTS_SEEN[-1] == Prompts(object_choice=3)
+    # the run over (its progress gone from the overlay): the page ignores Run while one runs
+    wait.until(lambda d: not d.find_elements(By.CSS_SELECTOR, "#overlay .progress-text"))
+
+    # Object box: two clicks at opposite corners; the box replaces the chosen region
+    driver.find_element(
+        By.XPATH, "//*[@id='click_mode']//label[contains(., 'object box corner')]"
+    ).click()
+    img = driver.find_element(By.CSS_SELECTOR, "#preview img")
+    before = img.get_attribute("src")
+    ax, ay = _click_on_image(driver, img, 0.7, 0.7)
+    wait.until(lambda d: "box corner" in text("#prompt_text"))
+    # the corner drawn: the shown picture is replaced before the next click lands on it
+    wait.until(lambda d: d.find_element(By.CSS_SELECTOR, "#preview img").get_attribute("src")
+               != before)  # fmt: skip
+    bx, by = _click_on_image(driver, driver.find_element(By.CSS_SELECTOR, "#preview img"),
+                             0.2, 0.3)  # fmt: skip
+    wait.until(lambda d: "object box: (" in text("#prompt_text"))
+    driver.find_element(By.CSS_SELECTOR, "#run").click()
+    wait.until(lambda d: len(PROMPTS_SEEN) == 4)
+    box = PROMPTS_SEEN[-1].object_box
+    expect = [(int(bx) + 0.5) * 1.25, (int(by) + 0.5) * 1.25, (int(ax) + 0.5) * 1.25,
+              (int(ay) + 0.5) * 1.25]  # fmt: skip
+    assert np.allclose(box, expect, atol=1.5) and PROMPTS_SEEN[-1].object_choice is None
     driver.save_screenshot(str(tmp_path / "page.png"))
 
 

@@ -33,6 +33,8 @@ def test_clicks_on_the_thumbnail_become_photo_pixels(tmp_path):
         "object_points": [],
         "hand_point": None,
         "background_points": [],
+        "object_box": None,
+        "box_corner": None,
         "object_choice": None,
         "photo_size": [1000, 800],
     }
@@ -77,6 +79,38 @@ def test_clicks_on_the_thumbnail_become_photo_pixels(tmp_path):
         bg = ap.add_click(bg, "background point", (i, i), (512, 410))
     assert len(bg["background_points"]) == ap.MAX_OBJECT_POINTS
     assert bg["background_points"][0][0] == round(3.5 * 1000 / 512, 1)
+
+
+def test_two_box_corners_make_the_object_box(tmp_path):
+    rgb, _, state = ap.load_preview(grey(tmp_path / "p.png"), 20)
+    s1 = ap.add_click(state, "object box corner", (300, 200), (512, 410))
+    assert s1["box_corner"] == [round(300.5 * 1000 / 512, 1), round(200.5 * 800 / 410, 1)]
+    assert s1["object_box"] is None and ap.state_prompts(s1) is None  # one corner: no box yet
+    assert ap.prompt_text(s1) == "box corner (587, 391): click the opposite corner"
+    s2 = ap.add_click(s1, "object box corner", (100, 50), (512, 410))  # any opposite corner
+    x0, y0 = round(100.5 * 1000 / 512, 1), round(50.5 * 800 / 410, 1)
+    x1, y1 = s1["box_corner"]
+    assert s2["object_box"] == [x0, y0, x1, y1] and s2["box_corner"] is None
+    assert ap.state_prompts(s2) == Prompts(object_box=(x0, y0, x1, y1))
+    assert ap.prompt_text(s2) == f"object box: ({x0:.0f}, {y0:.0f})-({x1:.0f}, {y1:.0f})"
+    # a second corner on the first one's row makes no box; a new pair replaces the box
+    s3 = ap.add_click(ap.add_click(s2, "object box corner", (10, 10), (512, 410)),
+                      "object box corner", (40, 10), (512, 410))  # fmt: skip
+    assert s3["object_box"] == s2["object_box"] and s3["box_corner"] is not None
+    s4 = ap.add_click(s3, "object box corner", (40, 40), (512, 410))
+    lo = ap.add_click(state, "object box corner", (10, 10), (512, 410))["box_corner"]
+    hi = ap.add_click(state, "object box corner", (40, 40), (512, 410))["box_corner"]
+    assert s4["object_box"] == lo + hi
+    # the box replaces the automatic path: a region chosen from it does not count
+    chosen = ap.set_choice(s2, "3")
+    assert ap.state_prompts(chosen).object_choice is None
+    assert "counts only without object points or box" in ap.prompt_text(chosen)
+    # drawn: a green rectangle on the box's outline, a green square at a pending corner
+    drawn = ap.draw_prompts(rgb, s2)
+    assert tuple(drawn[50, 200]) == (40, 220, 90) and tuple(drawn[125, 100]) == (40, 220, 90)
+    assert tuple(drawn[125, 200]) == (100, 100, 100)  # inside the box: untouched
+    pending = ap.draw_prompts(rgb, s1)
+    assert tuple(pending[200, 300]) == (40, 220, 90)
 
 
 def test_points_and_masks_are_drawn_where_they_are(tmp_path):

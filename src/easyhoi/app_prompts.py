@@ -40,9 +40,10 @@ __all__ = [
 
 #: Longer side of the photo as shown on the page, in pixels.
 PREVIEW_SIDE = 512
-#: What a click adds: a point on the held object (repeatable), the point on the holding hand, or
-#: a point that is not the object (repeatable: where the mask takes in too much).
-MODES = ("object point", "hand point", "background point")
+#: What a click adds: a point on the held object (repeatable), the point on the holding hand, a
+#: point that is not the object (repeatable: where the mask takes in too much), or a corner of a
+#: box round the object (two clicks, opposite corners; a new box replaces the old one).
+MODES = ("object point", "hand point", "background point", "object box corner")
 #: At most this many object points, and as many background points (a few clicks are enough;
 #: more is a stuck mouse).
 MAX_OBJECT_POINTS = 16
@@ -52,7 +53,7 @@ _HAND_COLOUR = (255, 140, 0)
 _BACKGROUND_COLOUR = (230, 40, 60)
 _REGION_COLOUR = (255, 200, 0)
 #: The state's prompts taken as they are (the object region: see :func:`state_prompts`).
-_STATE_PROMPTS = ("object_points", "hand_point", "background_points")
+_STATE_PROMPTS = ("object_points", "object_box", "hand_point", "background_points")
 
 
 def new_state(photo_size: tuple[int, int] | None = None) -> dict:
@@ -62,6 +63,8 @@ def new_state(photo_size: tuple[int, int] | None = None) -> dict:
         "object_points": [],
         "hand_point": None,
         "background_points": [],
+        "object_box": None,
+        "box_corner": None,
         "object_choice": None,
         "photo_size": size,
     }
@@ -105,7 +108,9 @@ def add_click(state: dict | None, mode: str, xy, shown_size: tuple[int, int]) ->
 
     ``mode`` is one of :data:`MODES`: an object point is appended (beyond
     :data:`MAX_OBJECT_POINTS`, the oldest but the first is dropped), the hand point replaced,
-    a background point appended (beyond :data:`MAX_OBJECT_POINTS`, the oldest dropped).
+    a background point appended (beyond :data:`MAX_OBJECT_POINTS`, the oldest dropped); a box
+    corner is kept until the next one, and the two make the object box (replacing any; a
+    second corner on the first one's row or column is ignored: a box needs width and height).
     A click outside the image (or before a photo is loaded) leaves the state as it is.
     """
     state = dict(state or new_state())
@@ -130,6 +135,14 @@ def add_click(state: dict | None, mode: str, xy, shown_size: tuple[int, int]) ->
     elif mode == MODES[2]:
         pts = list(state.get("background_points") or []) + [[px, py]]
         state["background_points"] = pts[-MAX_OBJECT_POINTS:]
+    elif mode == MODES[3]:
+        corner = state.get("box_corner")
+        if corner is None:
+            state["box_corner"] = [px, py]
+        elif corner[0] != px and corner[1] != py:
+            x0, x1 = sorted((corner[0], px))
+            y0, y1 = sorted((corner[1], py))
+            state["object_box"], state["box_corner"] = [x0, y0, x1, y1], None
     else:
         raise InvalidInputError(f"unknown click mode {mode!r}; one of {', '.join(MODES)}")
     return state
@@ -141,7 +154,7 @@ def state_prompts(state: dict | None) -> Prompts | None:
     if not state:
         return None
     d = {k: state.get(k) for k in _STATE_PROMPTS}
-    if not state.get("object_points"):
+    if not state.get("object_points") and not state.get("object_box"):
         d["object_choice"] = state.get("object_choice")
     p = Prompts.from_dict(d)
     return None if p.empty else p
@@ -150,8 +163,14 @@ def state_prompts(state: dict | None) -> Prompts | None:
 def prompt_text(state: dict | None) -> str:
     """One line for the page: the points so far (photo pixels), or how to add them."""
     p = state_prompts(state)
+    corner = (state or {}).get("box_corner")
+    pending = (
+        []
+        if corner is None
+        else [f"box corner ({corner[0]:.0f}, {corner[1]:.0f}): click the opposite corner"]
+    )
     if p is None:
-        return (
+        return "; ".join(pending) or (
             "Click on the held object in the photo to add a point (optional: the automatic "
             "choice is used without)."
         )
@@ -159,6 +178,9 @@ def prompt_text(state: dict | None) -> str:
     if p.object_points:
         pts = ", ".join(f"({x:.0f}, {y:.0f})" for x, y in p.object_points)
         parts.append(f"object point{'s' if len(p.object_points) > 1 else ''}: {pts}")
+    if p.object_box is not None:
+        x0, y0, x1, y1 = p.object_box
+        parts.append(f"object box: ({x0:.0f}, {y0:.0f})-({x1:.0f}, {y1:.0f})")
     if p.hand_point is not None:
         parts.append(f"hand point: ({p.hand_point[0]:.0f}, {p.hand_point[1]:.0f})")
     if p.background_points:
@@ -166,16 +188,17 @@ def prompt_text(state: dict | None) -> str:
         parts.append(f"not the object: {pts}")
     if p.object_choice is not None:
         parts.append(f"object region {p.object_choice}")
-    elif state.get("object_choice") and p.object_points:
-        parts.append("(the object region chosen counts only without object points)")
-    return "; ".join(parts)
+    elif state.get("object_choice") and p.has_object_prompt:
+        parts.append("(the object region chosen counts only without object points or box)")
+    return "; ".join(parts + pending)
 
 
 def draw_prompts(rgb: np.ndarray, state: dict | None, masks=None) -> np.ndarray:
     """The thumbnail with the points drawn (and ``masks`` = (hand, object) tinted, if given).
 
     Object points are green discs, the hand point an orange disc, background points red
-    discs with a white cross, all outlined in white.
+    discs with a white cross, all outlined in white; the object box a green rectangle, and a
+    box's first corner, before the second click, a green square.
     """
     from PIL import Image, ImageDraw
 
@@ -197,6 +220,12 @@ def draw_prompts(rgb: np.ndarray, state: dict | None, masks=None) -> np.ndarray:
     if state.get("hand_point"):
         points.append((state["hand_point"], _HAND_COLOUR))
     points += [(p, _BACKGROUND_COLOUR) for p in state.get("background_points") or []]
+    if state.get("object_box"):
+        x0, y0, x1, y1 = state["object_box"]
+        draw.rectangle((x0 * sx, y0 * sy, x1 * sx, y1 * sy), outline=_OBJECT_COLOUR, width=2)
+    if state.get("box_corner"):
+        u, v = state["box_corner"][0] * sx, state["box_corner"][1] * sy
+        draw.rectangle((u - r, v - r, u + r, v + r), fill=_OBJECT_COLOUR, outline=(255, 255, 255))
     for (x, y), colour in points:
         u, v = x * sx, y * sy
         draw.ellipse((u - r, v - r, u + r, v + r), fill=colour, outline=(255, 255, 255), width=2)
