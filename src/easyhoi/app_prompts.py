@@ -48,9 +48,6 @@ MODES = ("object point", "hand point", "background point", "object box corner")
 #: more is a stuck mouse).
 MAX_OBJECT_POINTS = 16
 
-_OBJECT_COLOUR = (40, 220, 90)
-_HAND_COLOUR = (255, 140, 0)
-_BACKGROUND_COLOUR = (230, 40, 60)
 _REGION_COLOUR = (255, 200, 0)
 #: The state's prompts taken as they are (the object region: see :func:`state_prompts`).
 _STATE_PROMPTS = ("object_points", "object_box", "hand_point", "background_points")
@@ -194,46 +191,23 @@ def prompt_text(state: dict | None) -> str:
 
 
 def draw_prompts(rgb: np.ndarray, state: dict | None, masks=None) -> np.ndarray:
-    """The thumbnail with the points drawn (and ``masks`` = (hand, object) tinted, if given).
-
-    Object points are green discs, the hand point an orange disc, background points red
-    discs with a white cross, all outlined in white; the object box a green rectangle, and a
-    box's first corner, before the second click, a green square.
-    """
-    from PIL import Image, ImageDraw
+    """The thumbnail with the prompts drawn (:func:`easyhoi.viz.marks.draw_marks`: object
+    points green, the hand point orange, background points red and crossed, the object box a
+    green rectangle and its pending first corner a green square) and ``masks`` = (hand,
+    object) tinted, if given."""
+    from easyhoi.viz.marks import HAND_COLOUR, OBJECT_COLOUR, draw_marks
 
     img = np.asarray(rgb, np.uint8).copy()
     h, w = img.shape[:2]
     if masks is not None:
-        for mask, colour in zip(masks, (_HAND_COLOUR, _OBJECT_COLOUR), strict=True):
+        for mask, colour in zip(masks, (HAND_COLOUR, OBJECT_COLOUR), strict=True):
             if mask is not None:
                 m = _resize_mask(mask, (w, h))
                 img[m] = (0.45 * img[m] + 0.55 * np.asarray(colour)).astype(np.uint8)
     size = (state or {}).get("photo_size")
     if not size:
         return img
-    sx, sy = w / size[0], h / size[1]
-    r = max(3, round(min(w, h) / 60))
-    pil = Image.fromarray(img)
-    draw = ImageDraw.Draw(pil)
-    points = [(p, _OBJECT_COLOUR) for p in state.get("object_points") or []]
-    if state.get("hand_point"):
-        points.append((state["hand_point"], _HAND_COLOUR))
-    points += [(p, _BACKGROUND_COLOUR) for p in state.get("background_points") or []]
-    if state.get("object_box"):
-        x0, y0, x1, y1 = state["object_box"]
-        draw.rectangle((x0 * sx, y0 * sy, x1 * sx, y1 * sy), outline=_OBJECT_COLOUR, width=2)
-    if state.get("box_corner"):
-        u, v = state["box_corner"][0] * sx, state["box_corner"][1] * sy
-        draw.rectangle((u - r, v - r, u + r, v + r), fill=_OBJECT_COLOUR, outline=(255, 255, 255))
-    for (x, y), colour in points:
-        u, v = x * sx, y * sy
-        draw.ellipse((u - r, v - r, u + r, v + r), fill=colour, outline=(255, 255, 255), width=2)
-        if colour == _BACKGROUND_COLOUR:  # a cross: "not this"
-            d = 0.5 * r
-            draw.line((u - d, v - d, u + d, v + d), fill=(255, 255, 255), width=2)
-            draw.line((u - d, v + d, u + d, v - d), fill=(255, 255, 255), width=2)
-    return np.asarray(pil)
+    return draw_marks(img, state, w / size[0], h / size[1])
 
 
 def _resize_mask(mask: np.ndarray, size: tuple[int, int]) -> np.ndarray:

@@ -76,6 +76,7 @@ def reconstruct_photo(
     inp, report = perceive(image.rgb, run, progress=say, provided=provided, prompts=prompts)
     if given is not None:
         inp.meta["prompts"] = given.to_dict()
+        inp.meta["prompts_photo_size"] = list(image.original_size)  # what their pixels are of
     if strict and report.low_confidence:
         from easyhoi.perception.feedback import low_confidence_error
 

@@ -273,6 +273,13 @@ def render_pictures(
     photo = shrink_photo(small_inp.image, masks.PANEL_WIDTH)
     f = photo.shape[1] / inp.image.shape[1]
     context = outlined(photo, tuple(round(v * f) for v in box))
+    prompts, size = inp.meta.get("prompts"), inp.meta.get("prompts_photo_size")
+    if prompts and size:  # where the user pointed, on the whole photo
+        from easyhoi.viz.marks import draw_marks
+
+        context = draw_marks(
+            context, prompts, context.shape[1] / size[0], context.shape[0] / size[1]
+        )
     return {
         "overlay.png": png_bytes(render_overlay(small_result, small_inp.image).image),
         "views.png": views_png(result),
