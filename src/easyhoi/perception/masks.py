@@ -165,6 +165,8 @@ class ClassicalHOISegmenter:
             only: the clicked object is grown from the points by GrabCut at this resolution
             (thin objects need the detail), and the region proposals are only computed when
             GrabCut collapses.
+        box_side (int): Longer side of the window (the box grown by half its size) in which an
+            object box is cut by GrabCut on its own (a small box seen in detail).
         refine_top (int): Number of best distinct hypotheses refined by GrabCut and scored again.
         iterations (int): GrabCut iterations.
         seed (int): Seed of OpenCV's RNG (GrabCut's GMM initialisation uses k-means).
@@ -186,6 +188,7 @@ class ClassicalHOISegmenter:
         min_score: float = 1.0,
         iterations: int = 5,
         click_side: int = 384,
+        box_side: int = 384,
         refine_top: int = 1,
         seed: int = 0,
         auto_scales: tuple[float, ...] = (100.0, 300.0, 600.0),
@@ -195,6 +198,7 @@ class ClassicalHOISegmenter:
         self.rank_top = int(rank_top)
         self.refine_top = int(refine_top)
         self.click_side = int(click_side)
+        self.box_side = int(box_side)
         self.crop_factor = float(crop_factor)
         self.work_side = int(work_side)
         self.segment_scale = float(segment_scale)
@@ -459,7 +463,7 @@ class ClassicalHOISegmenter:
             return _resample(w.excl, w.crop, win, size)
 
         win, m = box_grabcut(
-            image, w.prompts.object_box, pts, excl_at, self.click_side, self.iterations, self.seed
+            image, w.prompts.object_box, pts, excl_at, self.box_side, self.iterations, self.seed
         )
         h, wd = w.img.shape[:2]
         return _resample(m, win, w.crop, (wd, h))
