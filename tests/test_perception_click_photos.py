@@ -6,7 +6,8 @@ The photos are ones where only the region proposals containing the click give th
 (a board game with a printed picture, a cutting board, a two-coloured pack) or where GrabCut
 alone does (a bottle, a lollipop); IoU >= 0.5 is asserted, and that the object and hand masks
 do not overlap. A second point where a user adds one completes objects the hand splits and
-keeps what the first point found.
+keeps what the first point found. A box drawn round the object (the reference's bounding box
+grown by 5 %) finds it on photos where its own GrabCut or the box's tightness decides.
 """
 
 from __future__ import annotations
@@ -96,3 +97,40 @@ def test_a_second_point_adds_the_missing_part(shared_data, detector, key, one_be
     i1, i2 = pr.mask_iou(one.object_mask, target), pr.mask_iou(two.object_mask, target)
     assert i1 < one_below and i2 >= two_min, (key, i1, i2)
     assert (two.object_mask & one.object_mask).sum() >= 0.95 * one.object_mask.sum()
+
+
+#: Photos where a box drawn round the held object finds it: a trumpet and a board game larger
+#: than four hands, a sweet, a pack, a cutting board, a watering can.
+BOX_PHOTOS = (
+    "images__hamer-trumpet",
+    "photos-dev__ihoi-demo_08",
+    "photos-dev__mccho-boardgame_v_W_qdSiPKSdQ_frame000019",
+    "photos-dev__mow-food_v_K3IhJ4saTZk_frame000077",
+    "photos-dev__mow-drink_v_jgKR0euRFEU_frame000120",
+    "photos-dev__mow-gardening_v_M0Or9S0MVrw_frame000114",
+)
+
+
+@pytest.mark.parametrize("key", BOX_PHOTOS)
+def test_a_box_round_the_object_finds_it(shared_data, detector, key):
+    """The box a user draws round the held object: the reference mask's bounding box grown by
+    5 % of its size on every side (``benchmarks/bench_perception.py``'s ``IoU box``)."""
+    import numpy as np
+
+    from easyhoi.perception.chain import segment_hands
+    from easyhoi.perception.masks import ClassicalHOISegmenter
+    from easyhoi.perception.prompts import Prompts
+    from tests import perception_refs as pr
+
+    ref, rgb = photo(shared_data, key)
+    target = pr.held_object_mask(ref)
+    ys, xs = np.nonzero(target)
+    gx, gy = 0.05 * (xs.max() + 1 - xs.min()), 0.05 * (ys.max() + 1 - ys.min())
+    h, w = target.shape
+    box = (max(0.0, xs.min() - gx), max(0.0, ys.min() - gy),
+           min(w - 1.0, xs.max() + 1 + gx), min(h - 1.0, ys.max() + 1 + gy))  # fmt: skip
+    hands = detector.detect(rgb)
+    _, seg, _, _ = segment_hands(rgb, hands, ClassicalHOISegmenter(), Prompts(object_box=box))
+    assert seg is not None and seg.has_object
+    assert pr.mask_iou(seg.object_mask, target) >= 0.6, key
+    assert not (seg.object_mask & seg.hand_mask).any()
