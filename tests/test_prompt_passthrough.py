@@ -79,7 +79,8 @@ def test_hand_point_segments_only_the_pointed_hand(config):
 
 def test_object_prompts_reach_the_segmenter_of_the_nearest_hand(config):
     prompts = Prompts(object_points=((30.0, 40.0), (70.0, 40.0)), object_box=(150, 10, 199, 90))
-    with pytest.raises(NoObjectError, match=r"nearest the object prompt \(hand 0, left\)"):
+    # the user says an object is there: the error says nothing was found where they pointed
+    with pytest.raises(NoObjectError, match=r"at the object prompt \(for hand 0, left\)"):
         perceive(IMAGE, config, prompts=prompts)
     assert Recording.calls == [("left", prompts)]  # the points' mean (50, 40) is at the left hand
     Recording.calls = []

@@ -179,6 +179,12 @@ def perceive(
         if seg is None:
             if report.hand_choice is not None:
                 i = prompted_hand_order(hands, prompts)[0][0]
+                if prompts.has_object_prompt:  # the user says the object is there
+                    raise NoObjectError(
+                        f"no object could be segmented at the object prompt (for hand {i}, "
+                        f"{hands[i].side}): click inside the object or draw the box round all "
+                        "of it"
+                    )
                 raise NoObjectError(
                     f"the hand nearest the {report.hand_choice} (hand {i}, {hands[i].side}) "
                     "holds no object"
