@@ -235,7 +235,7 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool, choices: bool = F
         _, sp, _, _ = segment_hands(rgb, hands, segmenter, prompts=p)
         row["seconds_point"] = time.perf_counter() - t1
         row["iou_point"] = iou(sp.object_mask if sp is not None else None, ref["object"])
-        row["iou_box"] = box_iou(rgb, hands, segmenter, ref["object"])
+        row["iou_box"], row["low_box"] = box_run(rgb, hands, segmenter, ref["object"])
     return row
 
 
@@ -249,15 +249,17 @@ def object_box(ref_obj: np.ndarray, grow: float = BOX_GROW) -> tuple[float, floa
     return (max(0.0, x0 - gx), max(0.0, y0 - gy), min(w - 1.0, x1 + gx), min(h - 1.0, y1 + gy))
 
 
-def box_iou(rgb, hands, segmenter, ref_obj) -> float:
-    """Object IoU with the reference when the object is prompted by :func:`object_box`."""
+def box_run(rgb, hands, segmenter, ref_obj) -> tuple[float, bool]:
+    """(object IoU with the reference, object confidence low) when the object is prompted by
+    :func:`object_box`."""
     from easyhoi.perception.chain import segment_hands
     from easyhoi.perception.prompts import Prompts
 
     _, sb, _, _ = segment_hands(
         rgb, hands, segmenter, prompts=Prompts(object_box=object_box(ref_obj))
     )
-    return iou(sb.object_mask if sb is not None else None, ref_obj)
+    conf = sb.confidence.get("object") if sb is not None else None
+    return iou(sb.object_mask if sb is not None else None, ref_obj), bool(conf is None or conf.low)
 
 
 def click_ceiling(rgb, hands, segmenter, prompts, ref_obj) -> float | None:
@@ -298,7 +300,7 @@ def run_click(rgb, ref, detector, segmenter) -> dict:
         conf = sp.confidence.get("object") if sp is not None else None
         row["low_point"] = bool(conf is None or conf.low)
         row["ceiling_point"] = click_ceiling(rgb, hands, segmenter, p, ref["object"])
-        row["iou_box"] = box_iou(rgb, hands, segmenter, ref["object"])
+        row["iou_box"], row["low_box"] = box_run(rgb, hands, segmenter, ref["object"])
         sys.path.insert(0, str(ROOT))
         from tests.perception_refs import background_point, second_point
 
@@ -318,9 +320,9 @@ def run_click(rgb, ref, detector, segmenter) -> dict:
     return row
 
 
-def _share_low(rows: list[dict], keep) -> float:
-    """Share of the ``rows`` selected by ``keep`` (that ran the click) flagged low."""
-    sel = [r["low_point"] for r in rows if "low_point" in r and keep(r)]
+def _share_low(rows: list[dict], keep, key: str = "low_point") -> float:
+    """Share of the ``rows`` selected by ``keep`` (that ran the prompt of ``key``) flagged low."""
+    sel = [r[key] for r in rows if key in r and keep(r)]
     return float(np.mean(sel)) if sel else 0.0
 
 
@@ -360,6 +362,8 @@ def click_summary(rows: list[dict]) -> dict:
         "box_iou_ge_0.5": float(np.mean([r.get("iou_box", 0.0) >= 0.5 for r in pts]))
         if pts
         else 0.0,
+        "box_wrong_flagged_low": _share_low(pts, lambda r: r.get("iou_box", 0.0) < 0.5, "low_box"),
+        "box_right_flagged_low": _share_low(pts, lambda r: r.get("iou_box", 0.0) >= 0.5, "low_box"),
         "median_seconds_point": float(np.median(secs)) if secs else 0.0,
         # CPU time of the one process: wall time on a machine shared with other work
         "median_cpu_seconds_point": float(np.median(cpu)) if cpu else 0.0,
@@ -403,6 +407,9 @@ def summary(rows: list[dict]) -> dict:
         "point_mean_iou": float(np.mean([r["iou_point"] for r in pts])) if pts else 0.0,
         "box_iou_ge_0.5": float(np.mean([r["iou_box"] >= 0.5 for r in pts])) if pts else 0.0,
         "box_mean_iou": float(np.mean([r["iou_box"] for r in pts])) if pts else 0.0,
+        # the box masks with IoU < 0.5 / >= 0.5 whose object confidence is low (warned)
+        "box_wrong_flagged_low": _share_low(pts, lambda r: r["iou_box"] < 0.5, "low_box"),
+        "box_right_flagged_low": _share_low(pts, lambda r: r["iou_box"] >= 0.5, "low_box"),
         "median_seconds": float(np.median([r["seconds"] for r in rows])) if rows else 0.0,
         # CPU time of the one process: wall time on a machine shared with other work
         "median_cpu_seconds": float(np.median([r["cpu_seconds"] for r in rows])) if rows else 0.0,

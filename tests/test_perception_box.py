@@ -7,9 +7,10 @@ import cv2
 import numpy as np
 
 from easyhoi.perception.masks import ClassicalHOISegmenter, _resample
-from easyhoi.perception.prompted import box_grabcut, box_tightness
+from easyhoi.perception.prompted import box_grabcut, box_tightness, mask_hypothesis
 from easyhoi.perception.prompts import Prompts
-from tests.test_perception_held_object import S, canvas, det
+from easyhoi.perception.seg_confidence import BOX_AGREEMENT, object_confidence
+from tests.test_perception_held_object import S, canvas, det, scene_cues, scene_of
 from tests.test_perception_masks import BLUE, KP, RED, SKIN, iou
 
 
@@ -123,3 +124,28 @@ def test_box_grabcut_sees_a_small_box_at_its_own_resolution():
         384, 5, 0,
     )  # fmt: skip
     assert iou(_resample(m2, win, (0, 0, S, S), (S, S)), disk & ~excl) > 0.85
+
+
+def test_a_box_outline_no_other_candidate_reaches_is_unsure():
+    yy, xx = np.mgrid[0:S, 0:S]
+    obj = ((xx - 190) ** 2) / 30**2 + ((yy - 60) ** 2) / 22**2 < 1
+    img, hand = scene_of([(obj, RED)])
+    hyp = mask_hypothesis(obj, scene_cues(img, hand))
+
+    def conf(**kw):
+        return object_confidence(hyp, 0, None, True, True, 1.0, **kw)
+
+    sure, alone = conf(box_agreement=BOX_AGREEMENT), conf(box_agreement=BOX_AGREEMENT - 1)
+    assert not sure.low and not sure.reasons
+    assert alone.low and "box's other candidate outlines" in alone.reasons[-1]
+    # a box says how large the object is: a region many hands large is no doubt with one
+    big = mask_hypothesis(np.ones((S, S), bool) & ~hand, scene_cues(img, hand))
+    boxed, pointed = (object_confidence(big, 0, None, True, True, 1.0, box_agreement=4),
+                      object_confidence(big, 0, None, True, True, 1.0))  # fmt: skip
+    assert not boxed.reasons and any("size" in r for r in pointed.reasons)  # with points it is
+    assert pointed.score < boxed.score
+    # on the drawn scene the box's candidates agree on the ellipse
+    seg = ClassicalHOISegmenter(seed=0).segment(
+        img, det(), prompts=Prompts(object_box=(150.0, 30.0, 230.0, 90.0))
+    )
+    assert iou(seg.object_mask, obj) > 0.8 and not seg.confidence["object"].low

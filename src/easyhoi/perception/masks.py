@@ -264,7 +264,7 @@ class ClassicalHOISegmenter:
         def proposals():
             return self._prompt_proposals(w)
 
-        props, click_margin, choices = None, None, []
+        props, click_margin, box_agreement, choices = None, None, None, []
         if clicks:
             obj, hyp, best, props, click_margin = clicked_object(
                 img,
@@ -283,7 +283,7 @@ class ClassicalHOISegmenter:
             if prompts.object_box is not None:
                 b = to_work(np.reshape(prompts.object_box, (2, 2)))
                 box = (b[0, 0], b[0, 1], b[1, 0], b[1, 1])
-            obj, hyp, best = prompted_object(
+            obj, hyp, best, box_agreement = prompted_object(
                 img, props, scene, pts, box, self.iterations, self.seed,
                 box_cut=None if prompts.object_box is None else lambda: self._box_cut(image, w),
             )  # fmt: skip
@@ -316,7 +316,14 @@ class ClassicalHOISegmenter:
         conf = {
             "hand": hand_confidence(hand, hand_m, kp, d2),
             "object": object_confidence(
-                hyp, best, runner, has_object, prompted, self.min_score, one_click_margin
+                hyp,
+                best,
+                runner,
+                has_object,
+                prompted,
+                self.min_score,
+                one_click_margin,
+                box_agreement,
             ),
         }
 

@@ -100,13 +100,17 @@ def prompted_object(
     iterations: int,
     seed: int,
     box_cut: Callable[[], np.ndarray] | None = None,
-) -> tuple[np.ndarray, ho.Hypotheses | None, int | None]:
-    """(object mask, hypotheses, index of the chosen one) in working-crop pixels.
+) -> tuple[np.ndarray, ho.Hypotheses | None, int | None, int]:
+    """(object mask, hypotheses, index of the chosen one, agreement) in working-crop pixels.
 
     ``box`` (u0, v0, u1, v1) and the optional ``points`` (N, 2) (u, v) are in working-crop
     pixels. Points without a box go to :func:`clicked_object` instead. ``box_cut`` returns one
     more candidate, GrabCut of the box alone at the box's own resolution (:func:`box_grabcut`,
-    in working-crop pixels); it competes with the proposal-seeded ones by the same score.
+    in working-crop pixels); it competes with the proposal-seeded ones by the same score. The
+    agreement is how many of the other candidates reach the chosen outline (IoU >= 0.5): they
+    start from different regions, so several arriving at one outline is what the photo shows,
+    and one standing alone is a guess (:func:`easyhoi.perception.seg_confidence.
+    object_confidence`).
     """
     shape = img.shape[:2]
     h, w = shape
@@ -119,7 +123,7 @@ def prompted_object(
     boxmask = np.zeros(shape, bool)
     boxmask[max(0, v0) : max(0, v1), max(0, u0) : max(0, u1)] = True
     if not props.regions:
-        return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None
+        return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None, 0
     cues = ho.describe(props, scene)
     n = len(props.regions)
     ok = np.ones(n, bool)
@@ -138,7 +142,7 @@ def prompted_object(
     ok &= fit > 0.05
     ok &= ~enclosing_regions(props, scene.background_rings)
     if not ok.any():
-        return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None
+        return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), None, None, 0
     exclude = cv2.dilate(forbidden.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     codes = ho.colour_codes(scene.lab)
     width = max(3, int(0.2 * L))
@@ -161,7 +165,7 @@ def prompted_object(
     # the proposals break textured objects into parts: each of the best distinct levels seeds
     # GrabCut (whose colour mixtures gather an object's several colours), and the refined
     # masks are scored again
-    best, obj, best_s = None, None, -np.inf
+    best, obj, best_s, scored = None, None, -np.inf, []
     seeds = [
         (i, (props.mask(props.regions[i]) | sure) & ~forbidden) for i in ho.distinct_best(hyp, 4)
     ]
@@ -185,13 +189,19 @@ def prompted_object(
             a_in = float((m & boxmask).sum())
             f = (a_in / max(1.0, float(m.sum()))) * (a_in / max(1.0, float(boxmask.sum())))
         sc = float(prompt_score(c, sized=not tight)[0]) + 4.0 * f
+        scored.append(m)
         if sc > best_s:
             best, obj, best_s = i, m, sc
     if obj is None:  # every refined level took in a background point
-        return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), hyp, None
+        return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), hyp, None, 0
+    agree = sum(m is not obj and _iou(m, obj) >= 0.5 for m in scored)
     if best is None:  # the box's own GrabCut won: it is no proposal, so it stands alone
-        return obj, mask_hypothesis(obj, scene), 0
-    return obj, hyp, best
+        return obj, mask_hypothesis(obj, scene), 0, agree
+    return obj, hyp, best, agree
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum()) / max(1.0, float((a | b).sum()))
 
 
 def box_grabcut(
