@@ -48,9 +48,10 @@ _INTRO = """\
 # EasyHOI: hand + held object from one photo
 Upload a photo of a hand holding an object and press **Run**. If the wrong object is found,
 click on the held object in the photo (add more clicks for more of it; *background point*
-marks what the mask takes in that is not the object; *hand point* marks the holding hand), or
-pick another of the automatic path's *object regions* (numbered in `masks.png`), check it with
-**Show mask**, and run again. The reconstruction runs on this
+marks what the mask takes in that is not the object; *hand point* marks the holding hand;
+*object box corner* takes two clicks at opposite corners of a box drawn close round the
+object), or pick another of the automatic path's *object regions* (numbered in `masks.png`),
+check it with **Show mask**, and run again. The reconstruction runs on this
 machine's CPU: about half a minute with the *fast* preset on 2 cores, several minutes with
 *paper*. Same photo, points, preset and seed give the same result.
 """
