@@ -505,6 +505,7 @@ def main(argv=None) -> int:
                 f"pt2={row.get('iou_point2', float('nan')):.2f} "
                 f"fix={row.get('iou_fix', float('nan')):.2f}{row.get('fix', '')[:2]} "
                 f"cands={row.get('ceiling_point') or float('nan'):.2f} "
+                f"box={row.get('iou_box', float('nan')):.2f} "
                 f"{row.get('seconds_point', 0.0):.2f}s "
                 f"cpu {row.get('cpu_seconds_point', 0.0):.2f}s",
                 file=sys.stderr,
