@@ -616,7 +616,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hand-params", help="HaMeR hand file (.npz/.json/.pkl)")
     p.add_argument("--object-point", action="append", metavar="X,Y",
                    help="a pixel inside the held object (x right, y down; repeatable)")  # fmt: skip
-    p.add_argument("--object-box", metavar="X0,Y0,X1,Y1", help="a box around the held object")
+    p.add_argument("--object-box", metavar="X0,Y0,X1,Y1",
+                   help="a box drawn close round the held object (top-left, bottom-right "
+                   "corner)")  # fmt: skip
     p.add_argument("--hand-point", metavar="X,Y", help="a pixel on the hand holding the object")
     p.add_argument("--background-point", action="append", metavar="X,Y",
                    help="a pixel that is not the held object, where the mask takes in too much "
