@@ -48,7 +48,6 @@ MODES = ("object point", "hand point", "background point", "object box corner")
 #: more is a stuck mouse).
 MAX_OBJECT_POINTS = 16
 
-_REGION_COLOUR = (255, 200, 0)
 #: The state's prompts taken as they are (the object region: see :func:`state_prompts`).
 _STATE_PROMPTS = ("object_points", "object_box", "hand_point", "background_points")
 
@@ -315,6 +314,8 @@ def draw_regions(rgb: np.ndarray, regions) -> np.ndarray:
     import cv2
     from PIL import Image, ImageDraw
 
+    from easyhoi.viz.marks import REGION_COLOUR
+
     if not len(regions):
         return rgb
     img = np.ascontiguousarray(np.asarray(rgb, np.uint8).copy())
@@ -325,7 +326,7 @@ def draw_regions(rgb: np.ndarray, regions) -> np.ndarray:
         contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         if not contours:
             continue
-        cv2.drawContours(img, contours, -1, _REGION_COLOUR, 2)
+        cv2.drawContours(img, contours, -1, REGION_COLOUR, 2)
         # the number at the region's deepest pixel (inside it, whatever its shape); of a ridge
         # of nearly as deep pixels (a bar), the one nearest the ridge's middle
         depth = cv2.distanceTransform(np.pad(m, 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
@@ -344,6 +345,6 @@ def draw_regions(rgb: np.ndarray, regions) -> np.ndarray:
             if v in (r, h - r):
                 break
         placed.append((u, v))
-        draw.ellipse((u - r, v - r, u + r, v + r), fill=_REGION_COLOUR, outline=(0, 0, 0))
+        draw.ellipse((u - r, v - r, u + r, v + r), fill=REGION_COLOUR, outline=(0, 0, 0))
         draw.text((u, v), str(k), fill=(0, 0, 0), anchor="mm")
     return np.asarray(pil)

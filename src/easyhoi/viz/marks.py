@@ -3,18 +3,21 @@ web demo's photo and the result's ``masks.png``.
 
 Object points are green discs, the hand point an orange disc, background points red discs with
 a white cross, all outlined in white; the object box a green rectangle, and a box's first
-corner, before the second is given, a green square.
+corner, before the second is given, a green square. The object regions offered for
+``--object-choice`` are yellow (:data:`REGION_COLOUR`) in both places too.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["BACKGROUND_COLOUR", "HAND_COLOUR", "OBJECT_COLOUR", "draw_marks"]
+__all__ = ["BACKGROUND_COLOUR", "HAND_COLOUR", "OBJECT_COLOUR", "REGION_COLOUR", "draw_marks"]
 
 OBJECT_COLOUR = (40, 220, 90)
 HAND_COLOUR = (255, 140, 0)
 BACKGROUND_COLOUR = (230, 40, 60)
+#: The object regions offered for ``--object-choice`` (the demo's preview and ``masks.png``).
+REGION_COLOUR = (255, 200, 0)
 
 
 def draw_marks(rgb: np.ndarray, prompts: dict, sx: float, sy: float) -> np.ndarray:

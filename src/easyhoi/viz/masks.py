@@ -15,6 +15,7 @@ from easyhoi.errors import InvalidInputError
 from easyhoi.hoi import HOIInput, HOIResult
 from easyhoi.render.raster import depth_map
 from easyhoi.viz.compose import Panel, compose_grid
+from easyhoi.viz.marks import REGION_COLOUR
 from easyhoi.viz.overlay import (
     _check_result,
     photo_camera,
@@ -40,7 +41,6 @@ _BOTH = (40, 160, 70)
 _INPUT_ONLY = (220, 60, 50)
 _RENDER_ONLY = (60, 110, 235)
 _NONE = (245, 245, 245)
-_CHOICE = (255, 200, 0)
 
 
 def rendered_masks(result: HOIResult, height: int, width: int) -> dict[str, np.ndarray]:
@@ -103,7 +103,7 @@ def choice_panels(photo: np.ndarray, meta: dict, scale: float) -> list[Panel]:
     for k, outlines in enumerate(choices, start=1):
         m = outlines_mask(outlines, photo.shape[:2], scale)
         img = photo.copy()
-        img[m] = (0.45 * img[m] + 0.55 * np.array(_CHOICE)).astype(np.uint8)
+        img[m] = (0.45 * img[m] + 0.55 * np.array(REGION_COLOUR)).astype(np.uint8)
         title = f"--object-choice {k}" + (" (used)" if k == used else "")
         panels.append(Panel(img, title))
     return panels
@@ -153,6 +153,6 @@ def masks_png(
         title += ", around the hand and object"
     if choices:
         panels += list(choices)
-        legend.append(("object region offered", _CHOICE))
+        legend.append(("object region offered", REGION_COLOUR))
         title += "; the object regions offered (third row)"
     return png_bytes(compose_grid(panels, 4, PANEL_WIDTH, title=title, legend=legend))
