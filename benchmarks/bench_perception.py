@@ -239,25 +239,17 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool, choices: bool = F
     return row
 
 
-def object_box(ref_obj: np.ndarray, grow: float = BOX_GROW) -> tuple[float, float, float, float]:
-    """The box a user draws round the reference object: its bounding box grown by ``grow`` of
-    its width and height on every side, inside the photo."""
-    ys, xs = np.nonzero(ref_obj)
-    x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
-    gx, gy = grow * (x1 - x0), grow * (y1 - y0)
-    h, w = ref_obj.shape
-    return (max(0.0, x0 - gx), max(0.0, y0 - gy), min(w - 1.0, x1 + gx), min(h - 1.0, y1 + gy))
-
-
 def box_run(rgb, hands, segmenter, ref_obj) -> tuple[float, bool]:
     """(object IoU with the reference, object confidence low) when the object is prompted by
-    :func:`object_box`."""
+    the box a user draws round it (``tests/perception_refs.object_box``)."""
     from easyhoi.perception.chain import segment_hands
     from easyhoi.perception.prompts import Prompts
 
-    _, sb, _, _ = segment_hands(
-        rgb, hands, segmenter, prompts=Prompts(object_box=object_box(ref_obj))
-    )
+    sys.path.insert(0, str(ROOT))
+    from tests.perception_refs import object_box
+
+    box = object_box(ref_obj, BOX_GROW)
+    _, sb, _, _ = segment_hands(rgb, hands, segmenter, prompts=Prompts(object_box=box))
     conf = sb.confidence.get("object") if sb is not None else None
     return iou(sb.object_mask if sb is not None else None, ref_obj), bool(conf is None or conf.low)
 

@@ -183,6 +183,16 @@ def object_point(ref: PerceptionRef) -> tuple[int, int] | None:
     return int(xs[k]), int(ys[k])
 
 
+def object_box(mask: np.ndarray, grow: float = 0.05) -> tuple[float, float, float, float]:
+    """The box a user draws round the object ``mask``: its bounding box grown by ``grow`` of its
+    width and height on every side, inside the photo; (x0, y0, x1, y1)."""
+    ys, xs = np.nonzero(mask)
+    x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
+    gx, gy = grow * (x1 - x0), grow * (y1 - y0)
+    h, w = mask.shape
+    return (max(0.0, x0 - gx), max(0.0, y0 - gy), min(w - 1.0, x1 + gx), min(h - 1.0, y1 + gy))
+
+
 def second_point(mask: np.ndarray | None, ref: np.ndarray) -> tuple[float, float] | None:
     """Where a user adds a second object point: the deepest pixel of the part of the reference
     object ``ref`` that the one-point ``mask`` misses, when it misses more than it takes in

@@ -115,8 +115,6 @@ BOX_PHOTOS = (
 def test_a_box_round_the_object_finds_it(shared_data, detector, key):
     """The box a user draws round the held object: the reference mask's bounding box grown by
     5 % of its size on every side (``benchmarks/bench_perception.py``'s ``IoU box``)."""
-    import numpy as np
-
     from easyhoi.perception.chain import segment_hands
     from easyhoi.perception.masks import ClassicalHOISegmenter
     from easyhoi.perception.prompts import Prompts
@@ -124,11 +122,7 @@ def test_a_box_round_the_object_finds_it(shared_data, detector, key):
 
     ref, rgb = photo(shared_data, key)
     target = pr.held_object_mask(ref)
-    ys, xs = np.nonzero(target)
-    gx, gy = 0.05 * (xs.max() + 1 - xs.min()), 0.05 * (ys.max() + 1 - ys.min())
-    h, w = target.shape
-    box = (max(0.0, xs.min() - gx), max(0.0, ys.min() - gy),
-           min(w - 1.0, xs.max() + 1 + gx), min(h - 1.0, ys.max() + 1 + gy))  # fmt: skip
+    box = pr.object_box(target, 0.05)
     hands = detector.detect(rgb)
     _, seg, _, _ = segment_hands(rgb, hands, ClassicalHOISegmenter(), Prompts(object_box=box))
     assert seg is not None and seg.has_object
