@@ -26,6 +26,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from easyhoi.geometry.masks import mask_iou
 from easyhoi.perception import held_object as ho
 from easyhoi.perception.not_object import encloses
 from easyhoi.perception.proposals import Proposals, propose
@@ -479,9 +480,7 @@ def click_margin(scored: list[tuple[float, dict, np.ndarray]], best: int) -> flo
     m0 = scored[best][2]
     rest = sorted((i for i in range(len(scored)) if i != best), key=lambda i: -scored[i][0])
     for i in rest:
-        m = scored[i][2]
-        union = np.logical_or(m0, m).sum()
-        if union and np.logical_and(m0, m).sum() / union < OTHER_REGION_IOU:
+        if mask_iou(m0, scored[i][2], empty=1.0) < OTHER_REGION_IOU:
             return float(scored[best][0] - scored[i][0])
     return None
 

@@ -25,6 +25,7 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
+from easyhoi.geometry.masks import mask_iou
 from easyhoi.perception import held_object as ho
 from easyhoi.perception.click import click_object, click_proposals
 from easyhoi.perception.not_object import encloses, enclosing_regions
@@ -194,14 +195,10 @@ def prompted_object(
             best, obj, best_s = i, m, sc
     if obj is None:  # every refined level took in a background point
         return _grabcut_only(img, sure, boxmask, forbidden, iterations, seed), hyp, None, 0
-    agree = sum(m is not obj and _iou(m, obj) >= 0.5 for m in scored)
+    agree = sum(m is not obj and mask_iou(m, obj, empty=0.0) >= 0.5 for m in scored)
     if best is None:  # the box's own GrabCut won: it is no proposal, so it stands alone
         return obj, mask_hypothesis(obj, scene), 0, agree
     return obj, hyp, best, agree
-
-
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    return float((a & b).sum()) / max(1.0, float((a | b).sum()))
 
 
 def box_grabcut(

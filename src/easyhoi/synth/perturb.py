@@ -49,6 +49,7 @@ import torch
 import trimesh
 
 from easyhoi.errors import InvalidInputError
+from easyhoi.geometry.masks import mask_iou as _mask_iou
 from easyhoi.geometry.transforms import axis_angle_to_matrix, matrix_to_axis_angle, random_rotations
 from easyhoi.structures import Camera, HandParams
 
@@ -340,9 +341,9 @@ def perturb_mask(mask: np.ndarray, noise: MaskNoise, rng: np.random.Generator, o
 
 
 def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
-    """Intersection over union of two boolean masks (1 when both are empty)."""
-    union = np.logical_or(a, b).sum()
-    return float(np.logical_and(a, b).sum() / union) if union else 1.0
+    """Intersection over union of two boolean masks (1 when both are empty: a perturbation of
+    an empty mask leaves it as it is)."""
+    return _mask_iou(a, b, empty=1.0)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from easyhoi.errors import InvalidInputError
+from easyhoi.geometry.masks import mask_iou
 from easyhoi.hoi import HOIInput, HOIResult
 from easyhoi.render.raster import depth_map
 from easyhoi.viz.compose import Panel, compose_grid
@@ -63,15 +64,6 @@ def rendered_masks(result: HOIResult, height: int, width: int) -> dict[str, np.n
         "hand_amodal": h,
         "object_amodal": o,
     }
-
-
-def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
-    """Intersection over union of two boolean masks; NaN when both are empty."""
-    a, b = np.asarray(a, bool), np.asarray(b, bool)
-    if a.shape != b.shape:
-        raise InvalidInputError(f"masks differ in shape: {a.shape} vs {b.shape}")
-    union = np.count_nonzero(a | b)
-    return float("nan") if union == 0 else np.count_nonzero(a & b) / union
 
 
 def mask_ious(result: HOIResult, inp: HOIInput) -> dict[str, float]:

@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from easyhoi.geometry.masks import mask_iou
 from easyhoi.perception.shapes.common import (
     Hypothesis,
     WorkFrame,
@@ -121,9 +122,9 @@ def symmetry(mask: np.ndarray, n_rings: int = 64) -> dict:
     c, axes = principal_axes(mask)
     best = None
     for a in axes:
-        refl = _iou(mask, reflect_mask(mask, c, a))
+        refl = mask_iou(mask, reflect_mask(mask, c, a), empty=0.0)
         s, r, n = profile(mask, c, a, n_rings)
-        prof = _iou(mask, profile_mask(mask.shape, c, a, n, s, r))
+        prof = mask_iou(mask, profile_mask(mask.shape, c, a, n, s, r), empty=0.0)
         cand = dict(score=min(refl, prof), reflection_iou=refl, profile_iou=prof, center=c,
                     axis=a, s=s, r=r)  # fmt: skip
         if best is None or cand["score"] > best["score"] + 0.02:
@@ -139,11 +140,6 @@ def profile_mask(shape, c, a, n, s, r) -> np.ndarray:
     ps, pt = p @ a, p @ n
     inside = (ps >= s[0]) & (ps <= s[-1])
     return inside & (np.abs(pt) <= np.interp(ps, s, r))
-
-
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    union = np.logical_or(a, b).sum()
-    return float(np.logical_and(a, b).sum() / union) if union else 0.0
 
 
 def tilted_revolution_mesh(c, a, s, r, tilt: float, n_segments: int = 48):
