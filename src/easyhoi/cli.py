@@ -246,10 +246,14 @@ def cmd_bench(args) -> int:
     scenes = 3 if args.quick else args.scenes
     paper = args.paper_scenes if args.paper_scenes is not None else (1 if args.quick else 3)
     cap = args.paper_cap if args.paper_cap is not None else (100 if args.quick else 0)
+    from easyhoi.config import get_preset, parse_overrides
+
+    overrides = parse_overrides(args.set, get_preset("fast")) if args.set else {}
     settings = BenchmarkSettings(scenes=scenes, seed=args.seed, paper_scenes=min(paper, scenes),
                                  paper_cap=cap, perturbation=args.perturbation,
                                  sd_steps=args.sd_steps, gallery=min(3, scenes),
-                                 loss_ablation=not args.light, sd_cone=not args.light)  # fmt: skip
+                                 loss_ablation=not args.light, sd_cone=not args.light,
+                                 fast_overrides=overrides)  # fmt: skip
     report = run_benchmark(settings, progress=lambda msg: _say(args, msg))
     paths = save_report(report, args.out)
     _say(args, "\n" + tables_markdown(report))
@@ -700,6 +704,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sd-steps", type=int, default=35, help="S.D. simulation steps (default 35)")
     p.add_argument("--light", action="store_true",
                    help="no loss ablation, no S.D. gravity cone (about 3x faster)")  # fmt: skip
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override of the fast preset, e.g. optim.refine.prior_weight=5 "
+                        "(repeatable): a variant on the same scenes; compare two runs with "
+                        "benchmarks/compare_synth.py")  # fmt: skip
     _add_common(p)
     p.set_defaults(func=cmd_bench)
 

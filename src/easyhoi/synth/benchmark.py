@@ -33,7 +33,7 @@ import os
 import platform
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import torch
@@ -98,11 +98,20 @@ class BenchmarkSettings:
     loss_ablation: bool = True
     """Re-run stage 3 without each loss term (the loss ablation table; 4 refinements and their
     simulations per scene)."""
+    fast_overrides: dict = field(default_factory=dict)
+    """Overrides of the fast preset, ``{"optim.refine.prior_weight": 5.0, ...}`` as
+    :func:`easyhoi.config.with_overrides` takes them: a variant, run on the same scenes as the
+    preset itself (``benchmarks/compare_synth.py`` compares the two reports)."""
 
     def __post_init__(self):
         if self.scenes < 1 or self.paper_scenes < 0 or self.paper_cap < 0 or self.sd_steps < 1:
             raise InvalidInputError(f"invalid benchmark settings: {self}")
         get_perturbation(self.perturbation)
+        self.fast_config()  # an unknown path or a wrong value fails here, before any scene
+
+    def fast_config(self):
+        """The fast preset with :attr:`fast_overrides` applied (``EasyHOIConfig``)."""
+        return with_overrides(get_preset("fast"), dict(self.fast_overrides))
 
 
 def scene_specs(n: int, seed: int = 0) -> list[tuple[int, str, str]]:
@@ -247,7 +256,7 @@ def run_benchmark(
     ``timings``, ``wall_seconds`` and ``machine`` (see :func:`strip_timings`).
     """
     settings = settings or BenchmarkSettings()
-    fast = get_preset("fast").optim
+    fast = settings.fast_config().optim
     paper = _capped(get_preset("paper").optim, settings.paper_cap)
     load0 = os.getloadavg()
     t0 = time.perf_counter()

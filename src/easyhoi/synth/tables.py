@@ -382,6 +382,10 @@ def all_tables(report: dict) -> dict[str, str]:
 
 def tables_markdown(report: dict) -> str:
     parts = [f"## {title}\n\n{table}\n" for title, table in all_tables(report).items()]
+    overrides = report.get("settings", {}).get("fast_overrides")
+    if overrides:  # a variant: say so above its numbers
+        given = ", ".join(f"`{k}={json.dumps(v)}`" for k, v in overrides.items())
+        parts.insert(0, f"Fast preset with overrides: {given}.\n")
     return "\n".join(parts)
 
 
