@@ -64,6 +64,8 @@ def test_example_reconstructs_a_synthetic_photo_end_to_end(tmp_path, capsys):
     assert "penetration_depth_cm" in text and "hand_mask_iou" in text
     out = capsys.readouterr().out
     assert "results:" in out and "report.html" in out
+    # the synthetic photo's truth is known, and the demo says how the result compares with it
+    assert "against the scene's truth: hand mask IoU" in out and "px off" in out
 
 
 def test_imported_masks_of_a_non_square_photo_and_of_the_full_size_photo(tmp_path):

@@ -55,7 +55,8 @@ def cmd_demo_hand(args) -> int:
 
 
 def cmd_example(args) -> int:
-    """Generate a synthetic photo of a hand holding an object and reconstruct it end to end."""
+    """Generate a synthetic photo of a hand holding an object, reconstruct it end to end and
+    compare the result with the scene's truth (:mod:`easyhoi.synth.against_truth`)."""
     import time
 
     from PIL import Image
@@ -84,6 +85,12 @@ def cmd_example(args) -> int:
             rec = reconstruct_photo(photo, folder, run, progress=bar.update, say=bar.step)
         result = rec.result
         how = "photo -> perception -> optimizer"
+        # as `reconstruct` does: what the product doubts, and whether the hand touches
+        _tell_perception(args, photo.name, rec.perception)
+        _tell_contact(photo.name, result.plausibility)
+        from easyhoi.synth.against_truth import against_truth, truth_line
+
+        truth = truth_line(against_truth(scene, rec.inp, result, run.hand_model))
     except (NoHandError, NoObjectError) as exc:
         # the generated photo defeated the offline perception: use the scene's own (perturbed)
         # perception outputs so the demo still shows the optimizer, and say so
@@ -95,6 +102,7 @@ def cmd_example(args) -> int:
         result = optimize(inp, run.config.optim, hand_model=run.hand_model, device=run.optim_device)
         write_result_folder(result, inp, folder, hand_model=run.hand_model, title=photo.name)
         how = "synthetic perception outputs -> optimizer"
+        truth = None
     p = result.plausibility
     _say(args, f"reconstructed ({how}) in {time.perf_counter() - t0:.1f} s")
     from easyhoi.optim.run import SELF_CONSISTENCY_KEYS
@@ -105,6 +113,8 @@ def cmd_example(args) -> int:
     if own:
         items = ", ".join(f"{k}={_fmt(v)}" for k, v in own.items())
         _say(args, f"fit to its own masks (self-consistency, not accuracy): {items}")
+    if truth:
+        _say(args, truth)
     _say(args, f"results: {folder}  (open {folder / 'report.html'})")
     return 0
 
@@ -676,7 +686,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_common(p)
     p.set_defaults(func=cmd_batch, check_early=_batch_images)
 
-    p = sub.add_parser("example", help="synthetic photo -> full reconstruction (make demo)")
+    p = sub.add_parser(
+        "example",
+        help="synthetic photo -> full reconstruction, compared with the photo's truth (make demo)",
+    )
     p.add_argument("--out", default="outputs/demo", help="output folder")
     p.add_argument("--seed", type=int, default=None,
                    help="scene and run seed (alias of --set optim.seed; default 0)")  # fmt: skip
