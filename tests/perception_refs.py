@@ -171,7 +171,13 @@ def object_point(ref: PerceptionRef) -> tuple[int, int] | None:
     The pixel farthest from the mask's border is where a user asked to click "on the object"
     would click; it stands in for one click in prompted-segmentation benchmarks.
     """
-    mask = held_object_mask(ref)
+    return deepest_point(held_object_mask(ref))
+
+
+def deepest_point(mask: np.ndarray) -> tuple[int, int] | None:
+    """(x, y) of the deepest interior pixel of ``mask`` (see :func:`object_point`), or None
+    when it is empty."""
+    mask = np.asarray(mask, bool)
     if not mask.any():
         return None
     padded = np.pad(mask.astype(np.uint8), 1)  # the image border counts as outside

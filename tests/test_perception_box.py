@@ -149,3 +149,24 @@ def test_a_box_outline_no_other_candidate_reaches_is_unsure():
         img, det(), prompts=Prompts(object_box=(150.0, 30.0, 230.0, 90.0))
     )
     assert iou(seg.object_mask, obj) > 0.8 and not seg.confidence["object"].low
+
+
+def test_a_point_mask_that_runs_out_of_the_frame_on_every_side_is_unsure():
+    yy, xx = np.mgrid[0:S, 0:S]
+    obj = ((xx - 190) ** 2) / 30**2 + ((yy - 60) ** 2) / 22**2 < 1
+    img, hand = scene_of([(obj, RED)])
+    cues = scene_cues(img, hand)
+    # thin bars across the whole frame: an ordinary size, but no outline inside the frame
+    cross = np.zeros((S, S), bool)
+    cross[58:64, :] = True
+    cross[:, 188:194] = True
+    cross &= ~hand
+    ok = object_confidence(mask_hypothesis(obj, cues), 0, None, True, True, 1.0)
+    across = mask_hypothesis(cross, cues)
+    bad = object_confidence(across, 0, None, True, True, 1.0)
+    assert not ok.low and not ok.reasons
+    assert bad.low and any("every side of the frame" in r for r in bad.reasons)
+    assert not any("size" in r for r in bad.reasons)  # the sides alone make it unsure
+    # a box says how large the object is and where it ends: there the rule does not apply
+    boxed = object_confidence(across, 0, None, True, True, 1.0, box_agreement=BOX_AGREEMENT)
+    assert not any("every side" in r for r in boxed.reasons)

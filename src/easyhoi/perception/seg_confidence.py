@@ -9,8 +9,9 @@ Object (automatic): the held-object evidence of the chosen hypothesis (the hand-
 a grasped object lies (pressed by several fingers and the thumb, filling the grasp, not skin, not
 background running out of the picture, with a closed outline); a small margin means another
 region is almost as good a held object, and the choice between them is a guess. Prompted: the
-user said where the object is, so only a region that grew far beyond the prompt or looks like
-skin lowers the score, and, for a single object point, another outline around the point that
+user said where the object is, so only a region that grew far beyond the prompt (larger than
+held objects are, or running out of the frame around the points on all four sides) or looks
+like skin lowers the score, and, for a single object point, another outline around the point that
 scores almost as high (the click's choice between them is then a guess, which a second point
 on what the mask misses, or a background point on what it takes in, settles). An object box
 says how large the object is, so there size does not count; what does is whether the box's
@@ -98,6 +99,14 @@ def object_confidence(
         if box_agreement is None:  # a box says how large the object is; points do not
             z -= 2.0 * max(0.0, np.log(max(cues["area"], 1e-6) / 6.0))
         reasons = [r for r in reasons if "skin" in r or ("size" in r and box_agreement is None)]
+        if box_agreement is None and cues["sides"] >= 4:
+            # the frame reaches at least 3 palm lengths beyond the points: a region that runs
+            # out of it on every side has no outline in it, as a surface behind the hand
+            z -= CLICK_MARGIN_PENALTY
+            reasons.append(
+                "it reaches every side of the frame around the point, as a background does: "
+                "check masks.png"
+            )
         if click_margin is not None and click_margin < CLICK_MARGIN:
             z -= CLICK_MARGIN_PENALTY
             reasons.append(
