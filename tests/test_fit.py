@@ -137,3 +137,30 @@ def test_fit_openhand_round_trip_pose_close():
     assert angle.mean() < 0.1  # radians, mean over joints
     go_err = (fit.params.global_orient.double() - go).norm(dim=-1)
     assert go_err.max() < 0.05
+
+
+def test_a_narrow_knuckle_line_is_not_read_as_a_narrow_palm():
+    """Keypoints whose index and little-finger knuckles sit closer together than the model's
+    (as the detector's do, FitConfig.knuckle_3d_weight) leave the fitted proportions near the
+    model's; with the knuckles counted fully and no proportion prior the palm width gives."""
+    from easyhoi.hand.fit import PALM_EDGE_KNUCKLES, FitConfig
+    from easyhoi.hand.openhand import OpenHand
+    from easyhoi.hand.regions import flexion_axes
+
+    model = OpenHand(dtype=torch.float64)
+    axes = torch.as_tensor(flexion_axes(model), dtype=torch.float64)
+    pose = (0.4 * axes[None]).reshape(1, 45)
+    z = torch.zeros(1, 3, dtype=torch.float64)
+    gt = HandParams(z, z + torch.tensor([[0.0, 0.0, 0.5]], dtype=torch.float64), pose,
+                    torch.zeros(1, 10, dtype=torch.float64))  # fmt: skip
+    target = model(gt).keypoints.clone()
+    mid = target[:, 9]
+    for k in PALM_EDGE_KNUCKLES:  # 30 % of the way towards the middle knuckle
+        target[:, k] += 0.3 * (mid - target[:, k])
+    fitted = fit_keypoints(model, target).params.betas[0]
+    loose = FitConfig(proportion_prior=0.0, knuckle_3d_weight=1.0)
+    free = fit_keypoints(model, target, config=loose).params.betas[0]
+    assert free[2] < -1.5  # the palm read as about 10 % narrower
+    assert fitted[1:6].abs().max() < 0.3 and abs(float(fitted[2])) < 0.25 * abs(float(free[2]))
+    # nor is the size what gives instead
+    assert abs(float(fitted[0])) < 0.3
