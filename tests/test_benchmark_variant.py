@@ -99,3 +99,12 @@ def test_compare_refuses_runs_of_other_scenes(tmp_path, capsys):
     assert compare_synth.main([str(a), str(b)]) == 2
     assert "different scenes" in capsys.readouterr().err
     assert compare_synth.main([str(a), str(tmp_path / "missing.json")]) == 2
+
+
+def test_a_variant_says_so_above_its_tables(monkeypatch):
+    from easyhoi.synth import tables
+
+    monkeypatch.setattr(tables, "all_tables", lambda report: {"Goals": "| a |"})
+    text = tables.tables_markdown({"settings": {"fast_overrides": {"optim.refine.x": 2.5}}})
+    assert text.startswith("Fast preset with overrides: `optim.refine.x=2.5`.")
+    assert "Fast preset" not in tables.tables_markdown({"settings": {"fast_overrides": {}}})
