@@ -112,12 +112,10 @@ def _reprojected(hand_model: str, params, camera, metric_scale: float) -> np.nda
     import torch
 
     from easyhoi.hand import load_hand_model
+    from easyhoi.optim.hand_change import reprojected_keypoints
 
     model = load_hand_model(hand_model, dtype=torch.float64)
-    with torch.no_grad():
-        k = model(params.to(dtype=torch.float64)).keypoints[0] / metric_scale
-        uv, _ = camera.detach().to(torch.float64).project(k)
-    return uv.numpy()
+    return reprojected_keypoints(model, params, camera, metric_scale)
 
 
 def run_photo(

@@ -30,6 +30,20 @@ def _round(values: np.ndarray, digits: int = 3) -> list[float]:
     return [round(float(v), digits) for v in values]
 
 
+def reprojected_keypoints(model, params: HandParams, camera: Camera, metric_scale: float):
+    """(21, 2) float64 numpy pixels of ``params``' keypoints through ``camera``.
+
+    ``params`` in the metric object frame and ``camera`` acting on object units, as a result
+    holds them (``metric_scale`` metres per object unit; 1 for a hand in a metric frame).
+    """
+    dt = torch.float64
+    with torch.no_grad():
+        dev = model.faces.device
+        k = model(params.detach().to(dtype=dt, device=dev)).keypoints[0].cpu() / metric_scale
+        uv, _ = camera.detach().to(dt, "cpu").project(k)
+    return uv.numpy()
+
+
 def hand_change(
     model, inp: HOIInput, params: HandParams, camera: Camera, metric_scale: float
 ) -> dict:

@@ -10,21 +10,11 @@ camera, to the rendered keypoints).
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from easyhoi.geometry.masks import mask_iou
+from easyhoi.optim.hand_change import reprojected_keypoints
 
 __all__ = ["against_truth", "truth_line"]
-
-
-def _reprojected(model, result) -> np.ndarray:
-    """(21, 2) keypoints of the result's hand through the result's camera."""
-    dt = torch.float64
-    with torch.no_grad():
-        dev = model.faces.device
-        k = model(result.hand_params.detach().to(dtype=dt, device=dev)).keypoints[0].cpu()
-        uv, _ = result.camera.detach().to(dt, "cpu").project(k / result.metric_scale)
-    return uv.numpy()
 
 
 def against_truth(scene, inp, result, hand_model) -> dict:
@@ -51,7 +41,8 @@ def against_truth(scene, inp, result, hand_model) -> dict:
     det = inp.meta.get("keypoints2d") if isinstance(inp.meta, dict) else None
     if det is not None and np.shape(det) == (21, 2):
         out["detector_px"] = float(np.linalg.norm(np.asarray(det, np.float64) - gt, axis=1).mean())
-    out["result_px"] = float(np.linalg.norm(_reprojected(hand_model, result) - gt, axis=1).mean())
+    uv = reprojected_keypoints(hand_model, result.hand_params, result.camera, result.metric_scale)
+    out["result_px"] = float(np.linalg.norm(uv - gt, axis=1).mean())
     return out
 
 
