@@ -43,6 +43,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from easyhoi.geometry.masks import mask_iou
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OBJECTS = ROOT.parent / "shared" / "data" / "objects"
 
@@ -172,8 +174,7 @@ def run_scene(
     metric = mesh.copy()
     metric.vertices = np.asarray(mesh.vertices) * md["meters_per_unit"]
     row = {"object": sc.object.name, "seed": seed, "shape": md["method"], "seconds": seconds,
-           "amodal_iou": float((amodal & sc.object_amodal).sum() / (amodal | sc.object_amodal
-                                                                       ).sum())}  # fmt: skip
+           "amodal_iou": mask_iou(amodal, sc.object_amodal)}  # fmt: skip
     a = _metrics(metric, gt_world, align=True)
     row.update(cd=a["cd"], f5=a["f5"], f10=a["f10"], scale_err=abs(a["scale"] - 1))
     centre = gt_world.bounds.mean(0) @ R.T + t
@@ -203,10 +204,6 @@ def run_scene(
     return row
 
 
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    return float((a & b).sum() / max(1, (a | b).sum()))
-
-
 def amodal_scene(obj, seed: int, size: int) -> dict:
     """Amodal-mask diagnostic (``--amodal-only``): IoU with the true amodal mask of the visible
     mask, of prompted GrabCut, and of the occluder-bounded completion; and, as fractions of the
@@ -226,9 +223,9 @@ def amodal_scene(obj, seed: int, size: int) -> dict:
         "occluder": seg.segment(inpainted, pts, box, vis, hand_mask=hand),
     }
     area = max(1, int(gt.sum()))
-    row = {"object": sc.object.name, "seed": seed, "visible_iou": _iou(vis, gt)}
+    row = {"object": sc.object.name, "seed": seed, "visible_iou": mask_iou(vis, gt, empty=0.0)}
     for k, m in masks.items():
-        row[f"{k}_iou"] = _iou(m, gt)
+        row[f"{k}_iou"] = mask_iou(m, gt, empty=0.0)
         row[f"{k}_add_hand"] = float((m & ~gt & hand).sum() / area)
         row[f"{k}_add_out"] = float((m & ~gt & ~hand).sum() / area)
         row[f"{k}_miss"] = float((gt & ~m).sum() / area)
