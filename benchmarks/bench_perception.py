@@ -52,12 +52,15 @@ Usage::
     python benchmarks/bench_perception.py --click-only          # only the one-point runs
     python benchmarks/bench_perception.py --no-point --choices  # and each offered region
     python benchmarks/bench_perception.py --resample 0.9        # the photos at 0.9 x their size
+    python benchmarks/bench_perception.py --mirror              # the photos mirrored
 
 ``--resample F`` resamples every photo by ``F`` before anything else (area averaging below 1,
 bicubic above, capped at the photo loader's 1600 px longer side), with the reference masks and
 the object point resampled alike: the same scenes at another pixel size. Working sizes are in
 palm lengths, so the rates should not depend on it; how much they move is how much of a rate
-is the particular pixels of these photos rather than what they show.
+is the particular pixels of these photos rather than what they show. ``--mirror`` flips every
+photo and its reference left to right (after any resampling): the same pixel values, a left
+hand for a right one.
 
 Results: a Markdown table on stdout and ``benchmarks/results/bench_perception.json``.
 """
@@ -131,6 +134,24 @@ def resample(rgb: np.ndarray, factor: float, max_side: int = 1600) -> np.ndarray
         return rgb
     size = (max(8, round(w * f)), max(8, round(h * f)))
     return cv2.resize(rgb, size, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_CUBIC)
+
+
+def mirror(rgb: np.ndarray, ref: dict) -> tuple[np.ndarray, dict]:
+    """The photo and its reference mirrored left to right (the object point as well)."""
+
+    def flip(m):
+        return None if m is None else m[:, ::-1].copy()
+
+    pt = ref["point"]
+    if pt is not None:
+        pt = (rgb.shape[1] - 1 - pt[0], pt[1])
+    ref = {
+        **ref,
+        "hand": [flip(h) for h in ref["hand"]],
+        "object": flip(ref["object"]),
+        "point": pt,
+    }
+    return rgb[:, ::-1].copy(), ref
 
 
 def iou(a: np.ndarray | None, b: np.ndarray | None) -> float:
@@ -456,6 +477,12 @@ def main(argv=None) -> int:
         help="resample every photo by this factor first (the same scenes at another size)",
     )
     ap.add_argument(
+        "--mirror",
+        action="store_true",
+        help="mirror every photo left to right first (a left hand becomes a right one; the "
+        "pixels are the same)",
+    )
+    ap.add_argument(
         "--choices",
         action="store_true",
         help="also pick each object region the automatic path offers (--object-choice K) and "
@@ -487,6 +514,8 @@ def main(argv=None) -> int:
             continue
         rgb = resample(load_image(args.data / ref["image"]).rgb, args.resample)
         ref = fit_to(ref, rgb.shape[:2])
+        if args.mirror:
+            rgb, ref = mirror(rgb, ref)
         if args.click_only:
             row = run_click(rgb, ref, detector, segmenter)
             row["half"] = half

@@ -31,3 +31,24 @@ def test_reference_follows_the_resampled_photo():
     assert small["object"].shape == (150, 250)
     assert small["point"] == (125.0, 75.0)
     assert small["object"][75, 125] and small["object"].sum() == 50 * 50
+
+
+def test_mirror_flips_the_photo_and_its_reference_together():
+    bench = load_script("benchmarks/bench_perception.py")
+    rgb = np.zeros((300, 500, 3), np.uint8)
+    rgb[100:200, 20:60] = (255, 0, 0)
+    obj = np.zeros((300, 500), bool)
+    obj[100:200, 20:60] = True
+    ref = {"hand": [obj.copy()], "object": obj, "point": (39.0, 150.0)}
+    m_rgb, m_ref = bench.mirror(rgb, ref)
+    # the red bar now lies at columns 440-479, as do the masks, and the point with them
+    assert m_rgb[150, 459, 0] == 255 and m_rgb[150, 39, 0] == 0
+    assert m_ref["object"][100:200, 440:480].all() and m_ref["object"].sum() == obj.sum()
+    assert m_ref["hand"][0][150, 460] and not m_ref["hand"][0][150, 40]
+    assert m_ref["point"] == (460.0, 150.0)
+    assert m_rgb[int(m_ref["point"][1]), int(m_ref["point"][0]), 0] == 255
+    # mirroring twice gives the original back; the input is left as it was
+    back_rgb, back_ref = bench.mirror(m_rgb, m_ref)
+    assert np.array_equal(back_rgb, rgb) and np.array_equal(back_ref["object"], obj)
+    assert back_ref["point"] == ref["point"] and ref["object"][150, 40]
+    assert bench.mirror(rgb, {**ref, "object": None, "point": None})[1]["object"] is None
