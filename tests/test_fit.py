@@ -164,3 +164,47 @@ def test_a_narrow_knuckle_line_is_not_read_as_a_narrow_palm():
     assert fitted[1:6].abs().max() < 0.3 and abs(float(fitted[2])) < 0.25 * abs(float(free[2]))
     # nor is the size what gives instead
     assert abs(float(fitted[0])) < 0.3
+
+
+def test_a_scale_free_3d_term_leaves_the_size_to_the_prior():
+    """Keypoints of the mean hand scaled by 0.85 (a detector whose metric keypoints are smaller
+    than the model's): with the 3D term compared up to scale the fitted size stays the mean and
+    the pose and proportions are those of the keypoints; compared as they are, the size gives."""
+    from easyhoi.hand.fit import _compared_3d
+    from easyhoi.hand.openhand import OpenHand
+    from easyhoi.hand.regions import flexion_axes
+
+    model = OpenHand(dtype=torch.float64)
+    axes = torch.as_tensor(flexion_axes(model), dtype=torch.float64)
+    pose = (0.5 * axes[None]).reshape(1, 45)
+    z = torch.zeros(1, 3, dtype=torch.float64)
+    gt = HandParams(z, z + torch.tensor([[0.0, 0.0, 0.5]], dtype=torch.float64), pose,
+                    torch.zeros(1, 10, dtype=torch.float64))  # fmt: skip
+    kp = model(gt).keypoints
+    target = (kp - kp.mean(1, keepdim=True)) * 0.85
+    free = fit_keypoints(model, target, relative_3d=True, config=FitConfig(scale_free_3d=True))
+    plain = fit_keypoints(model, target, relative_3d=True)
+    assert float(plain.params.betas[0, 0]) < -2.0  # 15 % smaller: about -3 units of 5 %
+    assert abs(float(free.params.betas[0, 0])) < 0.3
+    assert free.params.betas[0, 1:].abs().max() < 0.3
+    assert free.error_3d.max() < 2e-3  # the shape matches (compared up to scale)
+    fitted = model(free.params).keypoints
+    fitted = fitted - fitted.mean(1, keepdim=True)
+    assert (fitted - (kp - kp.mean(1, keepdim=True))).norm(dim=-1).max() < 3e-3  # metres
+
+    # the comparison itself against a plain implementation; without relative_3d it is a no-op
+    g = torch.Generator().manual_seed(3)
+    a = torch.randn(2, 21, 3, generator=g, dtype=torch.float64)
+    b = torch.randn(2, 21, 3, generator=g, dtype=torch.float64) + 5.0
+    ca, cb = _compared_3d(a, b, relative=True, scale_free=True)
+    for i in range(2):
+        ac, bc = a[i] - a[i].mean(0), b[i] - b[i].mean(0)
+        assert_close(cb[i], bc)
+        assert_close(ca[i], ac * (bc.norm() / ac.norm()))
+    assert _compared_3d(a, b, relative=False, scale_free=True)[1] is b
+    # the model's size does not change what is compared (no gradient along a pure scaling)
+    a2 = a.clone().requires_grad_(True)
+    s = torch.ones(1, dtype=torch.float64, requires_grad=True)
+    ca, cb = _compared_3d(a2 * s, b, relative=True, scale_free=True)
+    ((ca - cb) ** 2).sum().backward()
+    assert abs(float(s.grad)) < 1e-9

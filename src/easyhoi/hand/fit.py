@@ -65,6 +65,12 @@ class FitConfig:
             keypoints, median of the 44 hands of the development photos, and 0.67 between
             OpenHand's joints): a difference of definition, which the fit must not read as a
             narrow palm.
+        scale_free_3d: with ``relative_3d``, compare the 3D keypoints up to scale (the model's
+            centred keypoints scaled to the targets' size): their shape sets the articulation
+            and proportions, and the size is left to the 2D keypoints' perspective and
+            ``shape_prior``, which keep it near the model's mean. For a detector's metric
+            keypoints, whose size is the detector's estimate in its own landmark definitions
+            and not a measurement (:data:`easyhoi.perception.hand_fit.DETECTION_FIT`).
         fit_shape: optimise betas (else they stay at the initial value).
         anatomy_weight: weight of the anatomical prior (:func:`anatomical_prior_weights`):
             penalises twist about the bones, sideways bending of the finger hinges and
@@ -78,6 +84,7 @@ class FitConfig:
     pose_prior: float = 1e-5
     shape_prior: float = 1e-2
     proportion_prior: float = 0.1
+    scale_free_3d: bool = False
     knuckle_3d_weight: float = 0.25
     fit_shape: bool = True
     anatomy_weight: float = 1.0
@@ -125,6 +132,20 @@ def kabsch(src: torch.Tensor, dst: torch.Tensor) -> tuple[torch.Tensor, torch.Te
     R = Vt.transpose(1, 2) @ D @ U.transpose(1, 2)
     t = mu_d[:, 0] - (R @ mu_s.transpose(1, 2))[..., 0]
     return R, t
+
+
+def _compared_3d(kp: torch.Tensor, k3: torch.Tensor, relative: bool, scale_free: bool):
+    """The model's (B, 21, 3) keypoints and the targets as the 3D term compares them: centred
+    when ``relative``; with ``scale_free`` the model's centred keypoints are also scaled to the
+    targets' root-mean-square size, so that their shape counts and the model's size does not
+    (scaling the targets instead would let a shrinking model shrink the residuals)."""
+    if not relative:
+        return kp, k3
+    a, b = kp - kp.mean(1, keepdim=True), k3 - k3.mean(1, keepdim=True)
+    if scale_free:
+        rms = lambda x: x.pow(2).sum((1, 2), keepdim=True).clamp_min(1e-12).sqrt()  # noqa: E731
+        a = a * (rms(b) / rms(a))
+    return a, b
 
 
 def _validate(keypoints3d, keypoints2d, camera, weights):
@@ -206,9 +227,7 @@ def fit_keypoints(
         kp = model(unpack(x), vertex_ids=_NO_VERTS).keypoints
         parts = []
         if k3 is not None:
-            a, b = kp, k3
-            if relative_3d:
-                a, b = a - a.mean(1, keepdim=True), b - b.mean(1, keepdim=True)
+            a, b = _compared_3d(kp, k3, relative_3d, config.scale_free_3d)
             r = (a - b) / config.robust_scale_m * kp_weights[..., 0:1].sqrt() * knuckles
             parts.append(r.reshape(B, -1))
         if k2 is not None:
@@ -242,9 +261,7 @@ def fit_keypoints(
             kp = model(unpack(x), vertex_ids=_NO_VERTS).keypoints
             out = torch.ones(B, NUM_KEYPOINTS, 2, dtype=dt)
             if k3 is not None:
-                a, b = kp, k3
-                if relative_3d:
-                    a, b = a - a.mean(1, keepdim=True), b - b.mean(1, keepdim=True)
+                a, b = _compared_3d(kp, k3, relative_3d, config.scale_free_3d)
                 q = ((a - b) ** 2).sum(-1) / (anneal * config.robust_scale_m) ** 2
                 out[..., 0] = 1 / (1 + q) ** 2
             if k2 is not None:
@@ -267,9 +284,7 @@ def fit_keypoints(
         kp = model(fitted).keypoints
         e3 = e2 = None
         if k3 is not None:
-            a, b = kp, k3
-            if relative_3d:
-                a, b = a - a.mean(1, keepdim=True), b - b.mean(1, keepdim=True)
+            a, b = _compared_3d(kp, k3, relative_3d, config.scale_free_3d)
             e3 = (a - b).norm(dim=-1)
         if k2 is not None:
             e2 = (cam.project(kp)[0] - k2).norm(dim=-1)
