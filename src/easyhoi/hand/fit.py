@@ -71,6 +71,8 @@ class FitConfig:
             ``shape_prior``, which keep it near the model's mean. For a detector's metric
             keypoints, whose size is the detector's estimate in its own landmark definitions
             and not a measurement (:data:`easyhoi.perception.hand_fit.DETECTION_FIT`).
+        size_prior: weight of ``betas[0]^2`` (the size) on top of ``shape_prior``; 0.5 is a
+            standard deviation of about 1.4 units (7 %).
         fit_shape: optimise betas (else they stay at the initial value).
         anatomy_weight: weight of the anatomical prior (:func:`anatomical_prior_weights`):
             penalises twist about the bones, sideways bending of the finger hinges and
@@ -85,6 +87,7 @@ class FitConfig:
     shape_prior: float = 1e-2
     proportion_prior: float = 0.1
     scale_free_3d: bool = False
+    size_prior: float = 0.0
     knuckle_3d_weight: float = 0.25
     fit_shape: bool = True
     anatomy_weight: float = 1.0
@@ -253,6 +256,8 @@ def fit_keypoints(
             parts.append(x[:, 51:61] * config.shape_prior**0.5)
             if config.proportion_prior > 0:
                 parts.append(x[:, 52:61] * config.proportion_prior**0.5)
+            if config.size_prior > 0:
+                parts.append(x[:, 51:52] * config.size_prior**0.5)
         return torch.cat(parts, dim=1)
 
     def irls_weights(x: torch.Tensor, anneal: float) -> torch.Tensor:

@@ -8,9 +8,12 @@ HaMeR's convention (``f = 5000 / 256 * max(W, H)``, nearly orthographic) is avai
 
 The fit (:func:`easyhoi.hand.fit.fit_keypoints`) uses the 3D keypoints up to a translation and
 a scale for the articulation and proportions (:data:`DETECTION_FIT`) and the 2D keypoints for
-placement (depth from apparent size). The hand's size stays the hand model's mean (an average
-adult hand): one photo cannot tell a small hand near the camera from a large one farther away,
-and the detector's metric 3D keypoints do not measure it either. They are its network's
+placement (depth from apparent size). The hand's size stays near the hand model's mean (an
+average adult hand), held there by a prior as wide as adult hands vary: one photo cannot tell a
+small hand near the camera from a large one farther away. The 2D keypoints' perspective does not
+measure it, as the field of view is assumed (docs/object_shape.md: posed against the 3D
+keypoints, no field of view fits them better than another), and the detector's metric 3D
+keypoints do not either. They are its network's
 estimate in its own landmark definitions: against OpenHand's mean hand the detected hands of
 the development photos (54) have a palm 5 % shorter, fingers 12 % shorter and a knuckle line
 20 % narrower (medians), and fitted with their size they came out 14 % smaller than the average
@@ -33,8 +36,10 @@ from easyhoi.structures import Camera
 
 DEFAULT_FOV_DEG = 50.0
 
-#: The fit of a detected hand: 3D keypoints compared up to scale (module docstring).
-DETECTION_FIT = FitConfig(scale_free_3d=True)
+#: The fit of a detected hand: 3D keypoints compared up to scale, and the size held near the
+#: mean by a prior of about 1.4 units (7 %, how much adult hands vary), since the 2D keypoints'
+#: perspective under an assumed field of view does not measure it either (module docstring).
+DETECTION_FIT = FitConfig(scale_free_3d=True, size_prior=0.5)
 
 
 def photo_camera(width: int, height: int, focal: str | float = "fov", fov_deg: float = 50.0):
