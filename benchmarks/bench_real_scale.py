@@ -12,7 +12,9 @@ so that a wrong automatic choice does not hide the size.
 Per photo: the sides of the reconstructed object's oriented bounding box (metres, from
 ``HOIResult.object_mesh_metric``), its longest and second side against the range of its kind,
 and the relative error of each side to that range (0 inside it, else the distance to the
-nearer end over that end). The summary is the median over photos of the longest side's error.
+nearer end over that end). The summary is the median over photos of the longest side's error,
+with the means of that error and of the log of the longest side over the middle of its range
+(below 0: the objects come out small).
 
 The sizes are those of the kind, not of the very object (the models are not known), so a
 range stands for the kinds whose sizes vary (pens, phones); a can's diameter and a sheet's
@@ -143,6 +145,9 @@ def summary(rows: list[dict]) -> dict:
         "second_err_median": float(np.median([r["second_err"] for r in ok])) if ok else None,
         "longest_in_range": sum(r["longest_err"] == 0 for r in ok),
         "longest_ratio_median": float(np.median([r["longest_ratio"] for r in ok])) if ok else None,
+        # means as well: a median over a dozen photos is whichever photo lies in the middle
+        "longest_err_mean": float(np.mean([r["longest_err"] for r in ok])) if ok else None,
+        "log_ratio_mean": float(np.mean([np.log(r["longest_ratio"]) for r in ok])) if ok else None,
     }
 
 

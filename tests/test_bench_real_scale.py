@@ -41,3 +41,20 @@ def test_every_photo_has_a_reference_labelled_as_its_kind():
         labels = [o["name"] for o in json.loads((refs / f"{stem}.json").read_text())["objects"]]
         # the reference names the held object; the kind is that label or the object it is
         assert any(kind.split()[-1] in lab or lab in kind for lab in labels), (stem, labels)
+
+
+def test_summary_medians_and_means_over_the_reconstructed_photos():
+    bs = _script()
+    rows = [
+        {"longest_err": 0.0, "second_err": 0.1, "longest_ratio": 1.0},
+        {"longest_err": 0.2, "second_err": 0.0, "longest_ratio": 0.5},
+        {"longest_err": 0.4, "second_err": 0.3, "longest_ratio": 2.0},
+        {"error": "NoHandError: no hand"},
+    ]
+    s = bs.summary(rows)
+    assert s["photos"] == 4 and s["reconstructed"] == 3 and s["longest_in_range"] == 1
+    assert s["longest_err_median"] == pytest.approx(0.2)
+    assert s["longest_err_mean"] == pytest.approx(0.2)
+    assert s["second_err_median"] == pytest.approx(0.1)
+    assert s["log_ratio_mean"] == pytest.approx(0.0, abs=1e-12)  # log 0.5 + log 2 = 0
+    assert s["longest_ratio_median"] == pytest.approx(1.0)

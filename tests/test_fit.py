@@ -139,20 +139,27 @@ def test_fit_openhand_round_trip_pose_close():
     assert go_err.max() < 0.05
 
 
-def test_a_narrow_knuckle_line_is_not_read_as_a_narrow_palm():
-    """Keypoints whose index and little-finger knuckles sit closer together than the model's
-    (as the detector's do, FitConfig.knuckle_3d_weight) leave the fitted proportions near the
-    model's; with the knuckles counted fully and no proportion prior the palm width gives."""
-    from easyhoi.hand.fit import PALM_EDGE_KNUCKLES, FitConfig
+def _flexed_mean_hand(flex: float):
+    """OpenHand (float64) and the mean hand 0.5 m ahead, every joint flexed by ``flex`` rad."""
     from easyhoi.hand.openhand import OpenHand
     from easyhoi.hand.regions import flexion_axes
 
     model = OpenHand(dtype=torch.float64)
     axes = torch.as_tensor(flexion_axes(model), dtype=torch.float64)
-    pose = (0.4 * axes[None]).reshape(1, 45)
+    pose = (flex * axes[None]).reshape(1, 45)
     z = torch.zeros(1, 3, dtype=torch.float64)
     gt = HandParams(z, z + torch.tensor([[0.0, 0.0, 0.5]], dtype=torch.float64), pose,
                     torch.zeros(1, 10, dtype=torch.float64))  # fmt: skip
+    return model, gt
+
+
+def test_a_narrow_knuckle_line_is_not_read_as_a_narrow_palm():
+    """Keypoints whose index and little-finger knuckles sit closer together than the model's
+    (as the detector's do, FitConfig.knuckle_3d_weight) leave the fitted proportions near the
+    model's; with the knuckles counted fully and no proportion prior the palm width gives."""
+    from easyhoi.hand.fit import PALM_EDGE_KNUCKLES, FitConfig
+
+    model, gt = _flexed_mean_hand(0.4)
     target = model(gt).keypoints.clone()
     mid = target[:, 9]
     for k in PALM_EDGE_KNUCKLES:  # 30 % of the way towards the middle knuckle
@@ -171,15 +178,8 @@ def test_a_scale_free_3d_term_leaves_the_size_to_the_prior():
     than the model's): with the 3D term compared up to scale the fitted size stays the mean and
     the pose and proportions are those of the keypoints; compared as they are, the size gives."""
     from easyhoi.hand.fit import _compared_3d
-    from easyhoi.hand.openhand import OpenHand
-    from easyhoi.hand.regions import flexion_axes
 
-    model = OpenHand(dtype=torch.float64)
-    axes = torch.as_tensor(flexion_axes(model), dtype=torch.float64)
-    pose = (0.5 * axes[None]).reshape(1, 45)
-    z = torch.zeros(1, 3, dtype=torch.float64)
-    gt = HandParams(z, z + torch.tensor([[0.0, 0.0, 0.5]], dtype=torch.float64), pose,
-                    torch.zeros(1, 10, dtype=torch.float64))  # fmt: skip
+    model, gt = _flexed_mean_hand(0.5)
     kp = model(gt).keypoints
     target = (kp - kp.mean(1, keepdim=True)) * 0.85
     free = fit_keypoints(model, target, relative_3d=True, config=FitConfig(scale_free_3d=True))

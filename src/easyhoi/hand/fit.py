@@ -67,12 +67,15 @@ class FitConfig:
             narrow palm.
         scale_free_3d: with ``relative_3d``, compare the 3D keypoints up to scale (the model's
             centred keypoints scaled to the targets' size): their shape sets the articulation
-            and proportions, and the size is left to the 2D keypoints' perspective and
-            ``shape_prior``, which keep it near the model's mean. For a detector's metric
-            keypoints, whose size is the detector's estimate in its own landmark definitions
-            and not a measurement (:data:`easyhoi.perception.hand_fit.DETECTION_FIT`).
+            and proportions, and the size is left to the other terms (the 2D keypoints'
+            perspective, ``shape_prior``, ``size_prior``). For a detector's metric keypoints,
+            whose size is the detector's estimate in its own landmark definitions and not a
+            measurement (:data:`easyhoi.perception.hand_fit.DETECTION_FIT`); the reported
+            ``error_3d`` is then the error up to scale too.
         size_prior: weight of ``betas[0]^2`` (the size) on top of ``shape_prior``; 0.5 is a
-            standard deviation of about 1.4 units (7 %).
+            standard deviation of about 1.4 units (7 %), about as much as adult hands vary.
+            For a size no keypoint measures: the 2D keypoints' perspective moves it only
+            through the assumed field of view.
         fit_shape: optimise betas (else they stay at the initial value).
         anatomy_weight: weight of the anatomical prior (:func:`anatomical_prior_weights`):
             penalises twist about the bones, sideways bending of the finger hinges and
