@@ -13,12 +13,13 @@ average adult hand), held there by a prior as wide as adult hands vary: one phot
 small hand near the camera from a large one farther away. The 2D keypoints' perspective does not
 measure it, as the field of view is assumed (docs/object_shape.md: posed against the 3D
 keypoints, no field of view fits them better than another), and the detector's metric 3D
-keypoints do not either. They are its network's
-estimate in its own landmark definitions: against OpenHand's mean hand the detected hands of
-the development photos (54) have a palm 5 % shorter, fingers 12 % shorter and a knuckle line
-20 % narrower (medians), and fitted with their size they came out 14 % smaller than the average
-adult hand (size coefficient median -2.8 units of 5 %), among the smallest few per cent of
-women's hands, and so did every metric length derived from them (docs/benchmark.md).
+keypoints do not either. They are its network's estimate in its own landmark definitions:
+against OpenHand's mean hand the detected hands of the development photos (54) have a palm 5 %
+shorter, fingers 12 % shorter and a knuckle line 20 % narrower (medians), and fitted with their
+size they came out 14 % smaller than the average adult hand (size coefficient median -2.8 units
+of 5 %), among the smallest few per cent of women's hands, and so did every metric length
+derived from them. On synthetic renders, whose hands' sizes are known, that fitted size does
+not follow the true one at all (docs/benchmark.md).
 """
 
 from __future__ import annotations
