@@ -155,9 +155,10 @@ def mirror(rgb: np.ndarray, ref: dict) -> tuple[np.ndarray, dict]:
 
 
 def iou(a: np.ndarray | None, b: np.ndarray | None) -> float:
-    if a is None or b is None:
-        return 0.0
-    return float((a & b).sum()) / max(1.0, float((a | b).sum()))
+    """Mask IoU, 0 when either mask is missing (None) or both are empty."""
+    from easyhoi.geometry.masks import mask_iou
+
+    return 0.0 if a is None or b is None else mask_iou(a, b, empty=0.0)
 
 
 def holding_hands_found(hands, ref) -> tuple[int, int]:

@@ -30,18 +30,25 @@ def _round(values: np.ndarray, digits: int = 3) -> list[float]:
     return [round(float(v), digits) for v in values]
 
 
+def _keypoints_seen(model, params: HandParams, camera: Camera, metric_scale: float):
+    """``params``' 21 keypoints through ``camera``: (21, 2) float64 pixels and (21, 3) float64
+    camera-frame points in metres (as :func:`reprojected_keypoints` takes its arguments)."""
+    dt = torch.float64
+    with torch.no_grad():
+        dev = model.faces.device  # the model's device: the parameters go there
+        k = model(params.detach().to(dtype=dt, device=dev)).keypoints[0].cpu() / metric_scale
+        cam = camera.detach().to(dt, "cpu")
+        uv, _ = cam.project(k)
+        return uv.numpy(), (cam.world_to_camera(k) * metric_scale).numpy()
+
+
 def reprojected_keypoints(model, params: HandParams, camera: Camera, metric_scale: float):
     """(21, 2) float64 numpy pixels of ``params``' keypoints through ``camera``.
 
     ``params`` in the metric object frame and ``camera`` acting on object units, as a result
     holds them (``metric_scale`` metres per object unit; 1 for a hand in a metric frame).
     """
-    dt = torch.float64
-    with torch.no_grad():
-        dev = model.faces.device
-        k = model(params.detach().to(dtype=dt, device=dev)).keypoints[0].cpu() / metric_scale
-        uv, _ = camera.detach().to(dt, "cpu").project(k)
-    return uv.numpy()
+    return _keypoints_seen(model, params, camera, metric_scale)[0]
 
 
 def hand_change(
@@ -56,19 +63,10 @@ def hand_change(
         camera: Camera, the result's object camera (object units to pixels, full photo).
         metric_scale: float, metres per object unit.
     """
-    dt = torch.float64
-    with torch.no_grad():
-        dev = model.faces.device  # the model's device: the parameters go there
-        k_est = model(inp.hand_params.to(dtype=dt, device=dev)).keypoints[0].cpu()
-        k_res = model(params.detach().to(dtype=dt, device=dev)).keypoints[0].cpu() / metric_scale
-        cam_h, cam_o = inp.hand_camera.detach().to(dt, "cpu"), camera.detach().to(dt, "cpu")
-        uv_est, _ = cam_h.project(k_est)
-        uv_res, _ = cam_o.project(k_res)
-        c_est = cam_h.world_to_camera(k_est)
-        c_res = cam_o.world_to_camera(k_res) * metric_scale  # metres
-    c_est, c_res = c_est.numpy(), c_res.numpy()
+    uv_est, c_est = _keypoints_seen(model, inp.hand_params, inp.hand_camera, 1.0)
+    uv_res, c_res = _keypoints_seen(model, params, camera, metric_scale)
     cm = np.linalg.norm((c_res - c_res[0]) - (c_est - c_est[0]), axis=1) * 100.0
-    px = np.linalg.norm(uv_res.numpy() - uv_est.numpy(), axis=1)
+    px = np.linalg.norm(uv_res - uv_est, axis=1)
     out = {
         "cm": _round(cm),
         "px": _round(px, 2),
@@ -82,7 +80,7 @@ def hand_change(
         q = np.asarray(det, dtype=np.float64)
         if q.shape == (21, 2):
             out["detector_px"] = {
-                "estimator": round(float(np.linalg.norm(uv_est.numpy() - q, axis=1).mean()), 2),
-                "result": round(float(np.linalg.norm(uv_res.numpy() - q, axis=1).mean()), 2),
+                "estimator": round(float(np.linalg.norm(uv_est - q, axis=1).mean()), 2),
+                "result": round(float(np.linalg.norm(uv_res - q, axis=1).mean()), 2),
             }
     return out
