@@ -193,22 +193,31 @@ def candidate_rotations(kind: str) -> list[tuple[str, np.ndarray]]:
 
 
 def initial_camera(
-    scene: Scene, cfg: CameraStageConfig, amodal_mask: np.ndarray, render_size: int
+    scene: Scene,
+    cfg: CameraStageConfig,
+    amodal_mask: np.ndarray,
+    render_size: int,
+    principal: tuple[float, float] | None = None,
+    fov_height: float | None = None,
 ) -> tuple[Camera, dict]:
     """The stage's starting camera (full image size) and a JSON-ready note of how it was chosen.
 
     See the module docstring; ``render_size`` and the first phase fraction set the resolution
-    at which candidates are compared.
+    at which candidates are compared. ``principal`` (default: the image centre) and
+    ``fov_height`` (the pixel height the field of view spans, default the image's) describe the
+    photo when the scene's image is a window of it (:mod:`easyhoi.optim.window`): the camera is
+    then the one the whole photo would start from, cropped.
     """
     H, W = scene.image_size
-    focal = 0.5 * H / math.tan(math.radians(cfg.init_fov_deg) / 2.0)
-    principal = (W / 2.0, H / 2.0)
+    focal = 0.5 * (fov_height or H) / math.tan(math.radians(cfg.init_fov_deg) / 2.0)
+    principal = (W / 2.0, H / 2.0) if principal is None else tuple(map(float, principal))
     verts = scene.object_verts.detach().double().cpu().numpy()
     c = scene.center.detach().double().cpu().numpy()
     dtype = scene.dtype
     if not cfg.init_from_masks:
         t = np.array([0.0, 0.0, cfg.init_distance]) - c
-        cam = Camera.from_focal(focal, W, H, R=np.eye(3), t=t, dtype=dtype, device=scene.device)
+        cam = Camera.from_focal(focal, W, H, R=np.eye(3), t=t, principal=principal,
+                                dtype=dtype, device=scene.device)  # fmt: skip
         return cam, {"init": "default", "distance": cfg.init_distance}
     box = _mask_box(np.asarray(amodal_mask, dtype=bool))
     h, w = scene.render_size(cfg.resolution_schedule[0], render_size)
@@ -217,7 +226,8 @@ def initial_camera(
     extreme_ids = hull_vertex_ids(verts)
     for label, R in candidate_rotations(cfg.init_rotations):
         t = fit_box(verts, R, focal, principal, box, c, extreme_ids)
-        cam = Camera.from_focal(focal, W, H, R=R, t=t, dtype=dtype, device=scene.device)
+        cam = Camera.from_focal(focal, W, H, R=R, t=t, principal=principal, dtype=dtype,
+                                device=scene.device)  # fmt: skip
         with torch.no_grad():
             sil = soft_silhouette(
                 scene.object_verts, scene.object_faces, cam.resized(w, h), SILHOUETTE_SIGMA

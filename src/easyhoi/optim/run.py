@@ -41,6 +41,7 @@ from easyhoi.optim.hand_change import hand_change
 from easyhoi.optim.placement import camera_hand_to_object
 from easyhoi.optim.refine import fit_refine
 from easyhoi.optim.state import Scene, hard_iou
+from easyhoi.optim.window import crop_input, interest_window, to_photo
 from easyhoi.render.raster import depth_map
 
 logger = logging.getLogger(__name__)
@@ -157,11 +158,17 @@ def optimize(
     hand_model = hand_model.on_device(device)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
+    photo_inp = inp
+    win = interest_window(inp, config.render_size)
+    inp = crop_input(inp, win)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
         scene = Scene.from_input(inp, hand_model, dtype, device)
         timings["setup"] = time.perf_counter() - t0
-        stages, camera, params, m = _run_stages(inp, scene, config, progress, timings)
+        # the camera the whole photo would start from, seen through the window
+        k = inp.hand_camera.K.detach().double().cpu()
+        frame = {"principal": (float(k[0, 2]), float(k[1, 2])), "fov_height": photo_inp.size[0]}
+        stages, camera, params, m = _run_stages(inp, scene, config, progress, timings, frame)
     t1 = time.perf_counter()
     report = plausibility(
         scene, params, m, camera, config.render_size, config.refine.sdf_resolution
@@ -176,7 +183,7 @@ def optimize(
     params, camera = params.to(device="cpu"), camera.to(device="cpu")
     stages = [_stage_on_cpu(s) for s in stages]
     change = hand_change(hand_model, inp, params, camera, m)
-    return HOIResult(
+    result = HOIResult(
         hand_params=params,
         camera=camera,
         hand_vertices=verts,
@@ -192,6 +199,7 @@ def optimize(
         meta=dict(inp.meta),
         hand_change=change,
     )
+    return to_photo(result, win, photo_inp)
 
 
 def _object_moved_to_hand_cm(stages) -> float | None:
@@ -220,10 +228,12 @@ def _place_hand(inp: HOIInput, scene: Scene, config: OptimConfig, cam):
     return p_cam, m, note, camera_hand_to_object(p_cam, cam, m, scene.hand_model)
 
 
-def _run_stages(inp: HOIInput, scene: Scene, config: OptimConfig, progress, timings: dict):
+def _run_stages(
+    inp: HOIInput, scene: Scene, config: OptimConfig, progress, timings: dict, frame: dict
+):
     stages: list[StageResult] = []
     t = time.perf_counter()
-    cam, note = initial_camera(scene, config.camera, inp.amodal_mask, config.render_size)
+    cam, note = initial_camera(scene, config.camera, inp.amodal_mask, config.render_size, **frame)
     p_cam, m, hand_note, params = _place_hand(inp, scene, config, cam)
     stages.append(
         StageResult(

@@ -1,0 +1,59 @@
+"""benchmarks/bench_real_e2e.py: the usable-result rates over hand-made rows, and one real photo
+through the whole pipeline scored against its reference masks."""
+
+from __future__ import annotations
+
+import pytest
+
+from tests.helpers import ROOT, load_script
+
+
+def _script():
+    return load_script("benchmarks/bench_real_e2e.py")
+
+
+def _row(usable, warned, hand=0.8, obj=0.8, mask=0.8, contact=True, status="ok", present=True):
+    return {"present": present, "status": status, "usable": usable, "warned": warned,
+            "hand_iou": hand, "object_iou": obj, "input_object_iou": mask,
+            "in_contact": contact, "cpu_seconds": 5.0}  # fmt: skip
+
+
+def test_summary_rates_over_the_photos_with_a_held_object():
+    be = _script()
+    rows = [
+        _row(True, False),
+        _row(False, True, obj=0.2, mask=0.7),  # a right mask the optimizer lost, warned
+        _row(False, False, obj=0.1, mask=0.1),  # wrong and silent
+        {
+            "present": True,
+            "status": "NoObjectError",
+            "usable": False,
+            "warned": True,
+            "cpu_seconds": 1.0,
+        },  # fmt: skip
+        _row(True, True, present=False),  # nothing held: not counted
+    ]
+    s = be.summary(rows)
+    assert s["photos"] == 4
+    assert s["finished"] == pytest.approx(0.75)
+    assert s["usable"] == pytest.approx(0.25)
+    assert s["unusable_warned"] == pytest.approx(2 / 3, abs=1e-3)
+    assert s["usable_warned"] == pytest.approx(0.0)
+    assert s["object_iou_ge_0.5"] == pytest.approx(0.25)
+    assert s["hand_iou_ge_0.5"] == pytest.approx(0.75)
+    assert s["in_contact"] == pytest.approx(0.75)
+    assert s["mask_lost"] == 1
+    assert s["mean_object_iou"] == pytest.approx((0.8 + 0.2 + 0.1) / 3, abs=1e-3)
+    assert s["median_cpu_seconds"] == pytest.approx(5.0)
+
+
+@pytest.mark.slow
+def test_a_clicked_phone_is_usable_against_its_reference(shared_data):
+    be = _script()
+    ref = ROOT / "tests" / "data" / "perception_refs" / "images__hort-phone.json"
+    row = be.run_one(str(ref), "point", str(shared_data))
+    assert row["status"] == "ok", row
+    # the rendered result, not perception's masks, against the hand-drawn reference
+    assert row["hand_iou"] >= 0.5 and row["object_iou"] >= 0.5 and row["in_contact"]
+    assert row["usable"]
+    assert row["input_object_iou"] >= 0.5
