@@ -170,7 +170,7 @@ def main(argv=None) -> int:
     jobs = [(str(f), m, str(args.data)) for f in files for m in modes]
     rows = []
     with ProcessPoolExecutor(args.workers, initializer=_init_worker) as pool:
-        for row, (f, _, _) in zip(pool.map(run_one, *zip(*jobs)), jobs, strict=True):
+        for row, (f, _, _) in zip(pool.map(run_one, *zip(*jobs, strict=True)), jobs, strict=True):
             row["half"] = "tune" if zlib.crc32(Path(f).stem.encode()) % 2 == 0 else "check"
             rows.append(row)
             print(_line(row), flush=True)
