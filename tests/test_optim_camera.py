@@ -195,3 +195,39 @@ def test_square_pixels_keep_one_focal(hand):
     assert _reprojection(scene, cam, sc.gt_camera) < 3.0
     free, _ = fit_camera(scene, cam0, replace(cfg.camera, square_pixels=False), cfg)
     assert float(free.fx) != float(free.fy)
+
+
+def test_sharpen_depth_undoes_a_distance_error_and_ties_keep_the_camera(hand):
+    """The object's hard silhouette at the ground-truth distance is the mask; from 5 % farther
+    the search along the ray through the object's centre comes back (factor 1/1.05), and at the
+    right distance it keeps the camera (factor 1)."""
+    from easyhoi.optim.camera import DEPTH_FACTORS, sharp_iou, sharpen_depth
+
+    sc, scene, _ = _setup("cylinder", hand)
+    gt = sc.gt_camera.to(torch.float32)
+    target = scene.masks_at(SIZE, SIZE)["amodal"]
+    c = gt.R @ scene.center + gt.t
+    far = Camera(gt.K, gt.R, gt.t + 0.05 * c, gt.width, gt.height)
+    iou_far = sharp_iou(scene, far, SIZE, SIZE, target)
+    cam, iou, f = sharpen_depth(scene, far, SIZE, SIZE, target)
+    assert 1 / 1.05 - 0.015 <= f <= 1 / 1.05 + 0.015 and f in DEPTH_FACTORS
+    assert iou > iou_far + 0.02 and iou == pytest.approx(sharp_iou(scene, cam, SIZE, SIZE, target))
+    np.testing.assert_allclose((cam.R @ scene.center + cam.t).numpy(), (f * 1.05 * c).numpy(),
+                               rtol=1e-5)  # fmt: skip
+    _, iou_gt, f_gt = sharpen_depth(scene, gt, SIZE, SIZE, target)
+    assert f_gt == 1.0 and iou_gt >= iou - 1e-9
+
+
+def test_a_start_that_already_fits_is_kept(hand):
+    """From the ground-truth camera the soft IoU fit still moves (the blurred silhouette's
+    optimum is not the sharp one's); the stage returns the start when its hard silhouette fits
+    better than where the fit ended."""
+    sc, scene, cfg = _setup("box", hand)
+    gt = sc.gt_camera.to(torch.float32)
+    target = scene.masks_at(SIZE, SIZE)["amodal"]
+    cam, res = fit_camera(scene, gt, cfg.camera, cfg)
+    assert res.iterations > 0 and res.extra["kept_start"]
+    assert res.extra["final_mask_iou"] == res.extra["start_mask_iou"] == 1.0
+    torch.testing.assert_close(cam.K, gt.K)
+    torch.testing.assert_close(cam.t, gt.t)
+    assert _raster_iou(scene, cam, target) == 1.0

@@ -17,7 +17,10 @@ grid while the masks barely overlap (IoU loss above :data:`SINKHORN_GATE`, where
 has vanishing gradients). Adam; coarse-to-fine phases (``resolution_schedule``) share
 ``max_iters``. A phase ends at ``stop_loss`` (IoU term), at ``patience`` or at its share of
 iterations; its best state (lowest IoU loss) seeds the next phase and the last phase's best is
-returned.
+returned, unless the starting camera's silhouette, thresholded at 0.5, overlaps M^_o more at the
+last phase's resolution: the blurred silhouette's optimum is not the sharp one's, and a start
+that already fits (an object mesh built from M^_o itself, placed by its box) is kept
+(``extra["kept_start"]``).
 
 Initialisation (``init_from_masks``): for each candidate rotation (``init_rotations``, see
 :func:`candidate_rotations`) the distance and the lateral offset are solved so that the
@@ -50,6 +53,7 @@ from easyhoi.optim.adam import Adam
 from easyhoi.optim.loop import StageLoop, early_stop, restore, run_phases, snapshot
 from easyhoi.optim.losses import sinkhorn_mask_loss, soft_iou_loss
 from easyhoi.optim.state import SILHOUETTE_SIGMA, Scene, hard_iou
+from easyhoi.render.raster import depth_map
 from easyhoi.render.soft import soft_silhouette
 from easyhoi.structures import Camera
 
@@ -239,6 +243,35 @@ def initial_camera(
     return best[1], {"init": "mask_box", "rotation": best[2], "candidates": notes}
 
 
+#: Distance factors tried by :func:`sharpen_depth` (the object's projected size scales by their
+#: inverse): 1 % steps within +-8 %.
+DEPTH_FACTORS = tuple(float(f) for f in np.round(np.linspace(0.92, 1.08, 17), 4))
+
+
+def sharp_iou(scene: Scene, camera: Camera, h: int, w: int, target: torch.Tensor) -> float:
+    """IoU of the object's hard silhouette (the mesh's z-buffer) at ``h`` x ``w`` with
+    ``target`` (thresholded at 0.5)."""
+    z = depth_map(scene.object_verts, scene.object_faces, camera.resized(w, h))
+    return hard_iou(torch.isfinite(z).to(target.dtype), target)
+
+
+def sharpen_depth(
+    scene: Scene, camera: Camera, h: int, w: int, target: torch.Tensor
+) -> tuple[Camera, float, float]:
+    """``camera`` moved along the ray through the object's centre to the distance whose hard
+    silhouette best matches ``target`` (module docs): (camera, its IoU, the distance factor;
+    1 on ties)."""
+    c = camera.R @ scene.center.to(camera.R.dtype) + camera.t  # the centre in camera space
+    best = None
+    for f in sorted(DEPTH_FACTORS, key=lambda f: abs(f - 1.0)):
+        cam = Camera._trusted(camera.K, camera.R, camera.t + (f - 1.0) * c, camera.width,
+                              camera.height)  # fmt: skip
+        iou = sharp_iou(scene, cam, h, w, target)
+        if best is None or iou > best[1]:
+            best = (cam, iou, f)
+    return best
+
+
 class _CameraParams:
     """Residual parameters around an initial camera (see the module docstring)."""
 
@@ -350,12 +383,20 @@ def fit_camera(
         loop, cfg.resolution_schedule, cfg.max_iters, opt, (cfg.patience, cfg.min_delta),
         begin, step, params.load,
     )  # fmt: skip
-    with torch.no_grad():
-        final_iou = hard_iou(silhouette(last), last.context[2])
+    h, w, target = last.context
     with torch.no_grad():
         camera = params.camera().detach()
+        camera, final_iou, factor = sharpen_depth(scene, camera, h, w, target)
+        start_iou = sharp_iou(scene, cam0, h, w, target)
+    # the start is kept when its mesh silhouette already fits M^_o better (module docs)
+    kept_start = start_iou > final_iou
+    if kept_start:
+        camera, final_iou = cam0.detach(), start_iou
     extra = {
         "final_mask_iou": final_iou,
+        "start_mask_iou": start_iou,
+        "depth_factor": factor,
+        "kept_start": kept_start,
         "best_iou_loss": loop.best_score if math.isfinite(loop.best_score) else None,
         "fx": float(camera.fx),
         "fy": float(camera.fy),
