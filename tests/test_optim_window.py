@@ -57,7 +57,7 @@ def small_in_large():
     st = BenchmarkSettings()
     s = make_scene(3, "box", "power", image_size=st.image_size, hold=True)
     inp = s.to_hoi_input(get_perturbation(st.perturbation), seed=0)
-    return inp, _paste(inp, 610, 250, 960, 640)
+    return inp, _paste(inp, 1200, 500, 1920, 1080)  # a full-HD video frame
 
 
 def _box(mask):
@@ -143,5 +143,5 @@ def test_a_small_scene_in_a_large_photo_reprojects_onto_its_masks(small_in_large
     )
     res_whole = optimize(big, cfg)
     iou_whole = mask_iou(rendered_masks(res_whole, H, W)["object_amodal"], big.amodal_mask)
-    assert iou_big > iou_whole + 0.05, (iou_big, iou_whole)
+    assert iou_big > iou_whole + 0.2, (iou_big, iou_whole)
     assert to_photo(res, (0, 0, W, H), big) is res  # a whole-photo window changes nothing
