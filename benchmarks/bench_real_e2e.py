@@ -98,7 +98,10 @@ def run_one(ref_file: str, mode: str, data: str) -> dict:
         intersection_cm3=plaus.get("intersection_volume_cm3"),
         warned=bool(lines or gap),
         warnings=[*lines, *([gap] if gap else [])],
-    )
+        camera_stage={k: v for st in rec.result.stages if st.name == "camera"
+                      for k, v in st.extra.items() if k != "hand"},
+        stage_seconds={st.name: round(st.seconds, 3) for st in rec.result.stages},
+    )  # fmt: skip
     row["usable"] = bool(
         row["hand_iou"] >= USABLE_IOU and row["object_iou"] >= USABLE_IOU and row["in_contact"]
     )

@@ -220,14 +220,33 @@ def test_sharpen_depth_undoes_a_distance_error_and_ties_keep_the_camera(hand):
 
 def test_a_start_that_already_fits_is_kept(hand):
     """From the ground-truth camera the soft IoU fit still moves (the blurred silhouette's
-    optimum is not the sharp one's); the stage returns the start when its hard silhouette fits
-    better than where the fit ended."""
+    optimum is not the sharp one's): a start whose sharp silhouette already fits runs no
+    iteration, and one that fits better than where the fit ends is returned."""
     sc, scene, cfg = _setup("box", hand)
     gt = sc.gt_camera.to(torch.float32)
     target = scene.masks_at(SIZE, SIZE)["amodal"]
     cam, res = fit_camera(scene, gt, cfg.camera, cfg)
-    assert res.iterations > 0 and res.extra["kept_start"]
+    assert res.iterations == 0 and res.stop_reason == "stop_loss" and res.extra["kept_start"]
     assert res.extra["final_mask_iou"] == res.extra["start_mask_iou"] == 1.0
     torch.testing.assert_close(cam.K, gt.K)
     torch.testing.assert_close(cam.t, gt.t)
     assert _raster_iou(scene, cam, target) == 1.0
+
+
+def test_a_start_below_the_stop_runs_the_fit_and_ends_sharper(hand):
+    """With the start check off (stop_loss 0), a start 2 % farther than the truth runs the soft
+    fit, and the camera returned has a sharper fit than the start (the distance search after
+    the soft fit)."""
+    from easyhoi.optim.camera import sharp_iou
+
+    sc, scene, cfg = _setup("box", hand)
+    gt = sc.gt_camera.to(torch.float32)
+    target = scene.masks_at(SIZE, SIZE)["amodal"]
+    c = gt.R @ scene.center + gt.t
+    far = Camera(gt.K, gt.R, gt.t + 0.02 * c, gt.width, gt.height)
+    start = sharp_iou(scene, far, SIZE, SIZE, target)
+    cam, res = fit_camera(scene, far, replace(cfg.camera, stop_loss=0.0), cfg)
+    assert res.iterations > 0 and not res.extra["kept_start"]
+    assert res.extra["start_mask_iou"] == pytest.approx(start) and start < 0.97
+    assert res.extra["final_mask_iou"] > 0.98
+    assert _raster_iou(scene, cam, target) == pytest.approx(res.extra["final_mask_iou"])

@@ -100,7 +100,8 @@ class CameraStageConfig:
     max_iters: int = 1000
     """Iteration cap over all resolution phases together (split evenly between them)."""
     stop_loss: float = 0.1
-    """Stop once the soft IoU loss (without the Sinkhorn term) is below this value."""
+    """Stop once the soft IoU loss (without the Sinkhorn term) is below this value; a start whose
+    sharp silhouette already has IoU >= 1 - stop_loss with M^_o runs no iteration."""
     patience: int = 0
     """Early stopping: stop after this many iterations without the total loss improving by
     min_delta (0 = off, the paper)."""

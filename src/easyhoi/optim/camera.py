@@ -17,10 +17,14 @@ grid while the masks barely overlap (IoU loss above :data:`SINKHORN_GATE`, where
 has vanishing gradients). Adam; coarse-to-fine phases (``resolution_schedule``) share
 ``max_iters``. A phase ends at ``stop_loss`` (IoU term), at ``patience`` or at its share of
 iterations; its best state (lowest IoU loss) seeds the next phase and the last phase's best is
-returned, unless the starting camera's silhouette, thresholded at 0.5, overlaps M^_o more at the
-last phase's resolution: the blurred silhouette's optimum is not the sharp one's, and a start
-that already fits (an object mesh built from M^_o itself, placed by its box) is kept
-(``extra["kept_start"]``).
+returned, unless the starting camera's sharp silhouette (the mesh's z-buffer) overlaps M^_o more
+at the last phase's resolution: the blurred silhouette's optimum is not the sharp one's, and a
+start that already fits (an object mesh built from M^_o itself, placed by its box) is kept
+(``extra["kept_start"]``). A start whose sharp silhouette has IoU >= ``1 - stop_loss`` there
+runs no iteration at all (stop reason ``"stop_loss"``). The camera returned is then moved along
+the ray through the object's centre to the distance whose sharp silhouette fits best
+(:func:`sharpen_depth`): the soft silhouette is wider than the mesh's, so the IoU fit leaves the
+object a few per cent too small.
 
 Initialisation (``init_from_masks``): for each candidate rotation (``init_rotations``, see
 :func:`candidate_rotations`) the distance and the lateral offset are solved so that the
@@ -379,19 +383,28 @@ def fit_camera(
         loop.offer(iou_v, params.state(), it)
         return total, early_stop(iou_v, cfg.stop_loss, phase.patience, total_v)
 
-    it, stop_reason, last = run_phases(
-        loop, cfg.resolution_schedule, cfg.max_iters, opt, (cfg.patience, cfg.min_delta),
-        begin, step, params.load,
-    )  # fmt: skip
-    h, w, target = last.context
+    # the finest resolution, where the start's sharp silhouette is judged
+    h, w, target = begin(cfg.resolution_schedule[-1])
     with torch.no_grad():
-        camera = params.camera().detach()
-        camera, final_iou, factor = sharpen_depth(scene, camera, h, w, target)
         start_iou = sharp_iou(scene, cam0, h, w, target)
-    # the start is kept when its mesh silhouette already fits M^_o better (module docs)
-    kept_start = start_iou > final_iou
-    if kept_start:
-        camera, final_iou = cam0.detach(), start_iou
+    if start_iou >= 1.0 - cfg.stop_loss:  # the start already fits: no iteration (module docs)
+        it, stop_reason, kept_start = 0, "stop_loss", True
+        with torch.no_grad():
+            camera, final_iou, factor = sharpen_depth(scene, cam0.detach(), h, w, target)
+    else:
+        it, stop_reason, last = run_phases(
+            loop, cfg.resolution_schedule, cfg.max_iters, opt, (cfg.patience, cfg.min_delta),
+            begin, step, params.load,
+        )  # fmt: skip
+        h, w, target = last.context
+        with torch.no_grad():
+            camera = params.camera().detach()
+            camera, final_iou, factor = sharpen_depth(scene, camera, h, w, target)
+        # the start is kept when its mesh silhouette already fits M^_o better (module docs)
+        kept_start = start_iou > final_iou
+        if kept_start:
+            with torch.no_grad():
+                camera, final_iou, factor = sharpen_depth(scene, cam0.detach(), h, w, target)
     extra = {
         "final_mask_iou": final_iou,
         "start_mask_iou": start_iou,
