@@ -25,6 +25,7 @@ unusable ones that were warned about, the mean IoUs, and the masks lost by the o
 Usage::
 
     python benchmarks/bench_real_e2e.py [--only NAME] [--workers 2] [--mode auto|point|both]
+                                        [--set KEY=VALUE ...] [--out FILE]
 """
 
 from __future__ import annotations
@@ -54,9 +55,10 @@ def _init_worker() -> None:
     torch.set_num_threads(1)
 
 
-def run_one(ref_file: str, mode: str, data: str) -> dict:
-    """One photo in one mode: the row described in the module docs."""
-    from easyhoi.config import get_preset
+def run_one(ref_file: str, mode: str, data: str, overrides: dict | None = None) -> dict:
+    """One photo in one mode: the row described in the module docs (``overrides``: configuration
+    overrides of the fast preset, as ``--set``)."""
+    from easyhoi.config import get_preset, with_overrides
     from easyhoi.errors import EasyHOIError
     from easyhoi.io.image import load_image
     from easyhoi.perception.feedback import contact_line, low_confidence_lines
@@ -77,7 +79,8 @@ def run_one(ref_file: str, mode: str, data: str) -> dict:
         prompts = Prompts(object_points=(tuple(float(v) for v in ref["point"]),))
     t0 = time.process_time()
     try:
-        rec = reconstruct_photo(path, None, get_preset("fast"), seed=0, prompts=prompts)
+        cfg = with_overrides(get_preset("fast"), overrides or {})
+        rec = reconstruct_photo(path, None, cfg, seed=0, prompts=prompts)
     except EasyHOIError as exc:
         row.update(status=type(exc).__name__, warned=True, usable=False,
                    cpu_seconds=time.process_time() - t0)  # fmt: skip
@@ -161,19 +164,33 @@ def main(argv=None) -> int:
     ap.add_argument("--mode", choices=("auto", "point", "both"), default="both")
     ap.add_argument("--workers", type=int, default=2, help="processes (one torch thread each)")
     ap.add_argument("--out", type=Path, default=RESULTS / "bench_real_e2e.json")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="configuration override of the fast preset (repeatable), to compare a variant",
+    )
     args = ap.parse_args(argv)
     if args.workers < 1:
         ap.error(f"--workers must be >= 1, got {args.workers}")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    from easyhoi.config import get_preset, parse_overrides
+    from easyhoi.errors import InvalidInputError
+
+    try:
+        overrides = parse_overrides(args.set, get_preset("fast"))
+    except InvalidInputError as exc:
+        ap.error(str(exc))
     files = [f for f in sorted(args.refs.glob("*.json")) if args.only in f.stem]
     if not files:
         print(f"no reference files in {args.refs} matching {args.only!r}", file=sys.stderr)
         return 1
     modes = ("auto", "point") if args.mode == "both" else (args.mode,)
-    jobs = [(str(f), m, str(args.data)) for f in files for m in modes]
+    jobs = [(str(f), m, str(args.data), overrides) for f in files for m in modes]
     rows = []
     with ProcessPoolExecutor(args.workers, initializer=_init_worker) as pool:
-        for row, (f, _, _) in zip(pool.map(run_one, *zip(*jobs, strict=True)), jobs, strict=True):
+        for row, (f, *_) in zip(pool.map(run_one, *zip(*jobs, strict=True)), jobs, strict=True):
             row["half"] = "tune" if zlib.crc32(Path(f).stem.encode()) % 2 == 0 else "check"
             rows.append(row)
             print(_line(row), flush=True)

@@ -57,3 +57,11 @@ def test_a_clicked_phone_is_usable_against_its_reference(shared_data):
     assert row["hand_iou"] >= 0.5 and row["object_iou"] >= 0.5 and row["in_contact"]
     assert row["usable"]
     assert row["input_object_iou"] >= 0.5
+
+
+def test_a_bad_override_is_an_argument_error(capsys):
+    be = _script()
+    with pytest.raises(SystemExit) as exc:
+        be.main(["--set", "optim.camera.no_such_field=1"])
+    assert exc.value.code == 2
+    assert "no_such_field" in capsys.readouterr().err
