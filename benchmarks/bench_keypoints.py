@@ -43,6 +43,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from preset_overrides import add_set_option, fast_overrides  # noqa: E402
+
 RESULTS = ROOT / "benchmarks" / "results"
 SHARED = (ROOT.parent / "shared" / "data", Path("/work/shared/data"))
 OWN_REFS = ROOT / "tests" / "data" / "keypoint_refs"
@@ -164,17 +167,9 @@ def main(argv=None) -> int:
     ap.add_argument("--images", type=Path, help="folder of its photos (default: beside it)")
     ap.add_argument("--limit", type=int, default=0, help="first N photos of each set (0: all)")
     ap.add_argument("--out", type=Path, default=RESULTS / "bench_keypoints.json")
-    ap.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="configuration override of the fast preset (repeatable)",
-    )
+    add_set_option(ap)
     args = ap.parse_args(argv)
-    from easyhoi.config import get_preset, parse_overrides
-
-    overrides = parse_overrides(args.set, get_preset("fast"))
+    overrides = fast_overrides(ap, args.set)
     import torch
 
     torch.set_num_threads(1)

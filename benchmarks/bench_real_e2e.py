@@ -44,6 +44,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_perception import DATA, RESULTS, fit_to, iou, reference  # noqa: E402
+from preset_overrides import add_set_option, fast_overrides  # noqa: E402
 
 #: IoU from which a rendered hand or object counts as roughly right.
 USABLE_IOU = 0.5
@@ -164,24 +165,12 @@ def main(argv=None) -> int:
     ap.add_argument("--mode", choices=("auto", "point", "both"), default="both")
     ap.add_argument("--workers", type=int, default=2, help="processes (one torch thread each)")
     ap.add_argument("--out", type=Path, default=RESULTS / "bench_real_e2e.json")
-    ap.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="configuration override of the fast preset (repeatable), to compare a variant",
-    )
+    add_set_option(ap)
     args = ap.parse_args(argv)
     if args.workers < 1:
         ap.error(f"--workers must be >= 1, got {args.workers}")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    from easyhoi.config import get_preset, parse_overrides
-    from easyhoi.errors import InvalidInputError
-
-    try:
-        overrides = parse_overrides(args.set, get_preset("fast"))
-    except InvalidInputError as exc:
-        ap.error(str(exc))
+    overrides = fast_overrides(ap, args.set)
     files = [f for f in sorted(args.refs.glob("*.json")) if args.only in f.stem]
     if not files:
         print(f"no reference files in {args.refs} matching {args.only!r}", file=sys.stderr)

@@ -197,17 +197,23 @@ def test_square_pixels_keep_one_focal(hand):
     assert float(free.fx) != float(free.fy)
 
 
+def _farther(kind, hand, k):
+    """The scene of ``kind``, its ground-truth camera, the amodal target, the object's centre in
+    that camera, and the camera moved ``k`` (a fraction) farther along the ray through it."""
+    sc, scene, cfg = _setup(kind, hand)
+    gt = sc.gt_camera.to(torch.float32)
+    target = scene.masks_at(SIZE, SIZE)["amodal"]
+    c = gt.R @ scene.center + gt.t
+    return scene, cfg, gt, target, c, Camera(gt.K, gt.R, gt.t + k * c, gt.width, gt.height)
+
+
 def test_sharpen_depth_undoes_a_distance_error_and_ties_keep_the_camera(hand):
     """The object's hard silhouette at the ground-truth distance is the mask; from 5 % farther
     the search along the ray through the object's centre comes back (factor 1/1.05), and at the
     right distance it keeps the camera (factor 1)."""
     from easyhoi.optim.camera import DEPTH_FACTORS, sharp_iou, sharpen_depth
 
-    sc, scene, _ = _setup("cylinder", hand)
-    gt = sc.gt_camera.to(torch.float32)
-    target = scene.masks_at(SIZE, SIZE)["amodal"]
-    c = gt.R @ scene.center + gt.t
-    far = Camera(gt.K, gt.R, gt.t + 0.05 * c, gt.width, gt.height)
+    scene, _, gt, target, c, far = _farther("cylinder", hand, 0.05)
     iou_far = sharp_iou(scene, far, SIZE, SIZE, target)
     cam, iou, f = sharpen_depth(scene, far, SIZE, SIZE, target)
     assert 1 / 1.05 - 0.015 <= f <= 1 / 1.05 + 0.015 and f in DEPTH_FACTORS
@@ -239,11 +245,7 @@ def test_a_start_below_the_stop_runs_the_fit_and_ends_sharper(hand):
     the soft fit)."""
     from easyhoi.optim.camera import sharp_iou
 
-    sc, scene, cfg = _setup("box", hand)
-    gt = sc.gt_camera.to(torch.float32)
-    target = scene.masks_at(SIZE, SIZE)["amodal"]
-    c = gt.R @ scene.center + gt.t
-    far = Camera(gt.K, gt.R, gt.t + 0.02 * c, gt.width, gt.height)
+    scene, cfg, _, target, _, far = _farther("box", hand, 0.02)
     start = sharp_iou(scene, far, SIZE, SIZE, target)
     cam, res = fit_camera(scene, far, replace(cfg.camera, stop_loss=0.0), cfg)
     assert res.iterations > 0 and not res.extra["kept_start"]
