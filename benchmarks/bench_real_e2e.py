@@ -159,12 +159,24 @@ def _line(r: dict) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--data", type=Path, default=DATA)
-    ap.add_argument("--refs", type=Path, default=ROOT / "tests" / "data" / "perception_refs")
+    ap.add_argument("--data", type=Path, default=DATA, help="folder the references' photos are in")
+    ap.add_argument(
+        "--refs",
+        type=Path,
+        default=ROOT / "tests" / "data" / "perception_refs",
+        help="folder of reference files (tests/perception_refs.py format)",
+    )
     ap.add_argument("--only", default="", help="substring of the photo names to run")
-    ap.add_argument("--mode", choices=("auto", "point", "both"), default="both")
+    ap.add_argument(
+        "--mode",
+        choices=("auto", "point", "both"),
+        default="both",
+        help="automatic, one object point at the reference's deepest pixel, or both",
+    )
     ap.add_argument("--workers", type=int, default=2, help="processes (one torch thread each)")
-    ap.add_argument("--out", type=Path, default=RESULTS / "bench_real_e2e.json")
+    ap.add_argument(
+        "--out", type=Path, default=RESULTS / "bench_real_e2e.json", help="JSON of every row"
+    )
     add_set_option(ap)
     args = ap.parse_args(argv)
     if args.workers < 1:
