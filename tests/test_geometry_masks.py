@@ -1,4 +1,5 @@
-"""The one mask IoU: against a pixel-by-pixel count, its rule for two empty masks, bad shapes."""
+"""The one mask IoU (against a pixel-by-pixel count, its rule for two empty masks, bad shapes) and
+the mask box."""
 
 import math
 
@@ -6,7 +7,7 @@ import numpy as np
 import pytest
 
 from easyhoi.errors import InvalidInputError
-from easyhoi.geometry.masks import mask_iou
+from easyhoi.geometry.masks import mask_box, mask_iou
 
 
 def _naive(a, b):
@@ -41,3 +42,12 @@ def test_two_empty_masks_give_the_callers_value():
 def test_masks_of_different_shapes_are_refused():
     with pytest.raises(InvalidInputError, match="differ in shape"):
         mask_iou(np.ones((3, 3), bool), np.ones((3, 4), bool))
+
+
+def test_mask_box_is_the_edges_of_the_inside_pixels():
+    m = np.zeros((6, 9), bool)
+    m[2, 3] = m[4, 7] = True
+    assert mask_box(m) == (3, 2, 8, 5)  # u0, v0 of the first pixels, u1, v1 one past the last
+    m[:] = False
+    with pytest.raises(InvalidInputError):
+        mask_box(m)

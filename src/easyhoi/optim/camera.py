@@ -51,6 +51,7 @@ import torch
 
 from easyhoi.config import CameraStageConfig, OptimConfig
 from easyhoi.errors import OptimizationError
+from easyhoi.geometry.masks import mask_box
 from easyhoi.geometry.transforms import axis_angle_to_matrix
 from easyhoi.hoi import StageResult
 from easyhoi.optim.adam import Adam
@@ -88,13 +89,6 @@ MAX_LOG_FOCAL = 20.0
 
 #: Fixed-point iterations of :func:`fit_box`.
 BOX_FIT_ITERS = 8
-
-
-def _mask_box(mask: np.ndarray) -> np.ndarray:
-    """(4,) pixel box ``u0, v0, u1, v1`` (edges, not centres) of a non-empty bool mask."""
-    rows = np.nonzero(mask.any(axis=1))[0]
-    cols = np.nonzero(mask.any(axis=0))[0]
-    return np.array([cols[0], rows[0], cols[-1] + 1, rows[-1] + 1], dtype=np.float64)
 
 
 def fit_box(
@@ -227,7 +221,7 @@ def initial_camera(
         cam = Camera.from_focal(focal, W, H, R=np.eye(3), t=t, principal=principal,
                                 dtype=dtype, device=scene.device)  # fmt: skip
         return cam, {"init": "default", "distance": cfg.init_distance}
-    box = _mask_box(np.asarray(amodal_mask, dtype=bool))
+    box = np.asarray(mask_box(amodal_mask), dtype=np.float64)
     h, w = scene.render_size(cfg.resolution_schedule[0], render_size)
     target = scene.masks_at(h, w)["amodal"]
     best, notes = None, []

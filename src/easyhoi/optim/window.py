@@ -21,19 +21,13 @@ from dataclasses import replace
 
 import numpy as np
 
+from easyhoi.geometry.masks import mask_box
 from easyhoi.hoi import HOIInput, HOIResult
 
 __all__ = ["MARGIN", "crop_input", "interest_window", "to_photo"]
 
 #: Growth of the window on every side, as a fraction of the longer side of the masks' box.
 MARGIN = 0.25
-
-
-def _box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
-    rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
-    if not len(rows):
-        return None
-    return int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
 
 
 def _span(a: float, b: float, length: float, limit: int) -> tuple[int, int]:
@@ -58,14 +52,14 @@ def interest_window(
     H, W = inp.size
     if max(H, W) <= render_size:  # the renders already see every pixel of the photo
         return 0, 0, W, H
-    boxes = [_box(m) for m in (inp.hand_mask, inp.object_mask, inp.amodal_mask)]
+    # an HOIInput's masks are never empty
+    boxes = [mask_box(m) for m in (inp.hand_mask, inp.object_mask, inp.amodal_mask)]
     kp = (inp.meta or {}).get("keypoints2d")
     if kp is not None:
         pts = np.asarray(kp, dtype=np.float64).reshape(-1, 2)
         if pts.size and np.isfinite(pts).all():
             lo, hi = np.floor(pts.min(axis=0)), np.ceil(pts.max(axis=0)) + 1
             boxes.append((int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1])))
-    boxes = [b for b in boxes if b is not None]
     x0, y0 = min(b[0] for b in boxes), min(b[1] for b in boxes)
     x1, y1 = max(b[2] for b in boxes), max(b[3] for b in boxes)
     grow = margin * max(x1 - x0, y1 - y0)
