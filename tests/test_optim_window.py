@@ -144,4 +144,4 @@ def test_a_small_scene_in_a_large_photo_reprojects_onto_its_masks(small_in_large
     res_whole = optimize(big, cfg)
     iou_whole = mask_iou(rendered_masks(res_whole, H, W)["object_amodal"], big.amodal_mask)
     assert iou_big > iou_whole + 0.2, (iou_big, iou_whole)
-    assert to_photo(res, (0, 0, W, H), big) is res  # a whole-photo window changes nothing
+    assert to_photo(res, (0, 0, W, H), (H, W)) is res  # a whole-photo window changes nothing

@@ -196,10 +196,10 @@ def optimize(
         seed=config.seed,
         config=to_dict(config),
         plausibility=report,
-        meta=dict(inp.meta),
+        meta=dict(photo_inp.meta),  # the photo's (the window's keypoints are shifted)
         hand_change=change,
     )
-    return to_photo(result, win, photo_inp)
+    return to_photo(result, win, photo_inp.size)
 
 
 def _object_moved_to_hand_cm(stages) -> float | None:

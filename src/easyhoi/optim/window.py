@@ -98,11 +98,11 @@ def crop_input(inp: HOIInput, win: tuple[int, int, int, int]) -> HOIInput:
     )
 
 
-def to_photo(result: HOIResult, win: tuple[int, int, int, int], inp: HOIInput) -> HOIResult:
-    """``result`` of the windowed input with its cameras (final and per stage) on the whole
-    photo of ``inp`` and ``inp``'s own meta."""
+def to_photo(result: HOIResult, win: tuple[int, int, int, int], size: tuple[int, int]) -> HOIResult:
+    """``result`` of the windowed input with its cameras (final and per stage) moved onto the
+    whole photo of ``size`` (H, W)."""
     x0, y0 = int(win[0]), int(win[1])
-    H, W = inp.size
+    H, W = size
     if (x0, y0, win[2], win[3]) == (0, 0, W, H):
         return result
 
@@ -110,4 +110,4 @@ def to_photo(result: HOIResult, win: tuple[int, int, int, int], inp: HOIInput) -
         return None if cam is None else cam.cropped(-x0, -y0, W, H)
 
     stages = tuple(replace(s, camera=back(s.camera)) for s in result.stages)
-    return replace(result, camera=back(result.camera), stages=stages, meta=dict(inp.meta))
+    return replace(result, camera=back(result.camera), stages=stages)
