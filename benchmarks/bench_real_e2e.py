@@ -61,7 +61,6 @@ def run_one(ref_file: str, mode: str, data: str, overrides: dict | None = None) 
     overrides of the fast preset, as ``--set``)."""
     from easyhoi.config import get_preset, with_overrides
     from easyhoi.errors import EasyHOIError
-    from easyhoi.io.image import load_image
     from easyhoi.perception.feedback import contact_line, low_confidence_lines
     from easyhoi.perception.prompts import Prompts
     from easyhoi.pipeline import reconstruct_photo
@@ -69,14 +68,13 @@ def run_one(ref_file: str, mode: str, data: str, overrides: dict | None = None) 
 
     ref = reference(Path(ref_file))
     path = Path(data) / ref["image"]
-    h, w = load_image(path).rgb.shape[:2]
-    ref = fit_to(ref, (h, w))
     row = {"photo": Path(ref["image"]).name, "mode": mode, "present": ref["object"] is not None}
     prompts = None
     if mode == "point":
         if ref["point"] is None:
             row["status"] = "no reference point"
             return row
+        # a reference is drawn on the photo as stored, the pixels prompts are given in
         prompts = Prompts(object_points=(tuple(float(v) for v in ref["point"]),))
     t0 = time.process_time()
     try:
@@ -87,6 +85,9 @@ def run_one(ref_file: str, mode: str, data: str, overrides: dict | None = None) 
                    cpu_seconds=time.process_time() - t0)  # fmt: skip
         return row
     row["cpu_seconds"] = time.process_time() - t0
+    # the masks on the photo as the pipeline loaded it (a large one is downscaled)
+    h, w = rec.inp.size
+    ref = fit_to(ref, (h, w))
     rendered = rendered_masks(rec.result, h, w)
     plaus = rec.result.plausibility
     lines = low_confidence_lines(rec.perception, prompted=prompts is not None)
