@@ -104,6 +104,17 @@ def reference(path: Path) -> dict:
     }
 
 
+def drawn_point(obj: np.ndarray, share: float, name: str) -> tuple[float, float]:
+    """A click drawn among the pixels of ``obj`` at least ``share`` times as deep (distance to
+    its outline) as its deepest one, seeded by the photo's ``name``: users click inside the
+    object, not always at its middle."""
+    padded = np.pad(obj.astype(np.uint8), 1)
+    dist = cv2.distanceTransform(padded, cv2.DIST_L2, 5)[1:-1, 1:-1]
+    ys, xs = np.nonzero(dist >= share * dist.max())
+    k = np.random.default_rng(zlib.crc32(name.encode())).integers(len(xs))
+    return float(xs[k]), float(ys[k])
+
+
 def fit_to(ref: dict, shape: tuple[int, int]) -> dict:
     """The reference with its masks resampled to ``shape`` (the photo loader may downscale
     very large photos)."""
@@ -489,8 +500,18 @@ def main(argv=None) -> int:
         help="also pick each object region the automatic path offers (--object-choice K) and "
         "report the best (best_choice_iou_ge_0.5)",
     )
+    ap.add_argument(
+        "--click-depth",
+        type=float,
+        default=None,
+        metavar="F",
+        help="click a pixel drawn (seeded by the photo's name) among those of the reference "
+        "object at least F times as deep as its deepest pixel, instead of the deepest one",
+    )
     ap.add_argument("--out", type=Path, default=RESULTS / "bench_perception.json")
     args = ap.parse_args(argv)
+    if args.click_depth is not None and not 0.0 <= args.click_depth <= 1.0:
+        ap.error(f"--click-depth must be in [0, 1], got {args.click_depth}")
     if not args.resample > 0:
         ap.error(f"--resample must be > 0, got {args.resample}")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -517,6 +538,8 @@ def main(argv=None) -> int:
         ref = fit_to(ref, rgb.shape[:2])
         if args.mirror:
             rgb, ref = mirror(rgb, ref)
+        if args.click_depth is not None and ref["object"] is not None:
+            ref["point"] = drawn_point(ref["object"], args.click_depth, name)
         if args.click_only:
             row = run_click(rgb, ref, detector, segmenter)
             row["half"] = half
