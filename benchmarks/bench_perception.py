@@ -508,10 +508,20 @@ def main(argv=None) -> int:
         help="click a pixel drawn (seeded by the photo's name) among those of the reference "
         "object at least F times as deep as its deepest pixel, instead of the deepest one",
     )
+    ap.add_argument(
+        "--click-draw",
+        type=int,
+        default=0,
+        metavar="K",
+        help="with --click-depth: the K-th draw of the click (0: seeded by the photo's name "
+        "alone; K > 0: by the name and K), for several users' clicks on the same photos",
+    )
     ap.add_argument("--out", type=Path, default=RESULTS / "bench_perception.json")
     args = ap.parse_args(argv)
     if args.click_depth is not None and not 0.0 <= args.click_depth <= 1.0:
         ap.error(f"--click-depth must be in [0, 1], got {args.click_depth}")
+    if args.click_draw < 0 or (args.click_draw and args.click_depth is None):
+        ap.error("--click-draw takes K >= 0 and needs --click-depth")
     if not args.resample > 0:
         ap.error(f"--resample must be > 0, got {args.resample}")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -539,7 +549,8 @@ def main(argv=None) -> int:
         if args.mirror:
             rgb, ref = mirror(rgb, ref)
         if args.click_depth is not None and ref["object"] is not None:
-            ref["point"] = drawn_point(ref["object"], args.click_depth, name)
+            key = name if args.click_draw == 0 else f"{name}#{args.click_draw}"
+            ref["point"] = drawn_point(ref["object"], args.click_depth, key)
         if args.click_only:
             row = run_click(rgb, ref, detector, segmenter)
             row["half"] = half

@@ -70,3 +70,14 @@ def test_a_drawn_click_lies_inside_the_object_deep_enough_and_is_seeded():
     assert bench.drawn_point(obj, 0.5, "a.jpg") == bench.drawn_point(obj, 0.5, "a.jpg")
     x, y = bench.drawn_point(obj, 1.0, "a.jpg")
     assert depth[int(y), int(x)] >= depth.max() - 1.0
+
+
+def test_click_draw_needs_click_depth_and_a_count():
+    import pytest
+
+    bench = load_script("benchmarks/bench_perception.py")
+    for argv in (["--click-draw", "2"], ["--click-depth", "0.5", "--click-draw", "-1"],
+                 ["--click-depth", "1.5"]):  # fmt: skip
+        with pytest.raises(SystemExit) as exc:
+            bench.main(argv)
+        assert exc.value.code == 2
