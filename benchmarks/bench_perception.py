@@ -104,17 +104,6 @@ def reference(path: Path) -> dict:
     }
 
 
-def drawn_point(obj: np.ndarray, share: float, name: str) -> tuple[float, float]:
-    """A click drawn among the pixels of ``obj`` at least ``share`` times as deep (distance to
-    its outline) as its deepest one, seeded by the photo's ``name``: users click inside the
-    object, not always at its middle."""
-    padded = np.pad(obj.astype(np.uint8), 1)
-    dist = cv2.distanceTransform(padded, cv2.DIST_L2, 5)[1:-1, 1:-1]
-    ys, xs = np.nonzero(dist >= share * dist.max())
-    k = np.random.default_rng(zlib.crc32(name.encode())).integers(len(xs))
-    return float(xs[k]), float(ys[k])
-
-
 def fit_to(ref: dict, shape: tuple[int, int]) -> dict:
     """The reference with its masks resampled to ``shape`` (the photo loader may downscale
     very large photos)."""
@@ -549,6 +538,8 @@ def main(argv=None) -> int:
         if args.mirror:
             rgb, ref = mirror(rgb, ref)
         if args.click_depth is not None and ref["object"] is not None:
+            from tests.perception_refs import drawn_point  # on the path since reference()
+
             key = name if args.click_draw == 0 else f"{name}#{args.click_draw}"
             ref["point"] = drawn_point(ref["object"], args.click_depth, key)
         if args.click_only:

@@ -18,6 +18,7 @@ A mask is the union of its polygons filled with ``cv2.fillPoly`` (boundary pixel
 from __future__ import annotations
 
 import json
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -180,13 +181,29 @@ def deepest_point(mask: np.ndarray) -> tuple[int, int] | None:
     mask = np.asarray(mask, bool)
     if not mask.any():
         return None
-    padded = np.pad(mask.astype(np.uint8), 1)  # the image border counts as outside
-    dist = cv2.distanceTransform(padded, cv2.DIST_L2, 5)[1:-1, 1:-1]
+    dist = inner_distance(mask)
     # Ties (a ridge of equally deep pixels, as in a long bar): take the tied pixel nearest to
     # the middle of the ridge, so the point does not depend on the scan order.
     ys, xs = np.nonzero(dist >= dist.max() - 1e-3)
     k = int(np.argmin((xs - xs.mean()) ** 2 + (ys - ys.mean()) ** 2))
     return int(xs[k]), int(ys[k])
+
+
+def inner_distance(mask: np.ndarray) -> np.ndarray:
+    """(H, W) float distance of every pixel of ``mask`` to its outline (0 outside); the image
+    border counts as outside."""
+    padded = np.pad(np.asarray(mask, bool).astype(np.uint8), 1)
+    return cv2.distanceTransform(padded, cv2.DIST_L2, 5)[1:-1, 1:-1]
+
+
+def drawn_point(mask: np.ndarray, share: float, key: str) -> tuple[float, float]:
+    """(x, y) of a click drawn among the pixels of the non-empty ``mask`` at least ``share``
+    times as deep as its deepest one (:func:`inner_distance`), seeded by ``key``: users click
+    inside the object, not always at its middle."""
+    dist = inner_distance(mask)
+    ys, xs = np.nonzero(dist >= share * dist.max())
+    k = np.random.default_rng(zlib.crc32(key.encode())).integers(len(xs))
+    return float(xs[k]), float(ys[k])
 
 
 def object_box(mask: np.ndarray, grow: float = 0.05) -> tuple[float, float, float, float]:

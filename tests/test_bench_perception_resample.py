@@ -57,18 +57,19 @@ def test_mirror_flips_the_photo_and_its_reference_together():
 def test_a_drawn_click_lies_inside_the_object_deep_enough_and_is_seeded():
     from scipy import ndimage
 
-    bench = load_script("benchmarks/bench_perception.py")
+    from tests.perception_refs import drawn_point
+
     obj = np.zeros((120, 200), bool)
     obj[20:100, 30:170] = True  # a 80 x 140 bar: deepest pixels 40 px from the outline
     depth = ndimage.distance_transform_edt(np.pad(obj, 1))[1:-1, 1:-1]
-    pts = {bench.drawn_point(obj, 0.5, f"photo{i}.jpg") for i in range(30)}
+    pts = {drawn_point(obj, 0.5, f"photo{i}.jpg") for i in range(30)}
     assert len(pts) > 10  # the photos' names draw different clicks
     for x, y in pts:
         assert obj[int(y), int(x)]
         assert depth[int(y), int(x)] >= 0.5 * depth.max() - 1.0  # the 5x5 mask's distances
     # the same name draws the same click; share 1 leaves the deepest ridge only
-    assert bench.drawn_point(obj, 0.5, "a.jpg") == bench.drawn_point(obj, 0.5, "a.jpg")
-    x, y = bench.drawn_point(obj, 1.0, "a.jpg")
+    assert drawn_point(obj, 0.5, "a.jpg") == drawn_point(obj, 0.5, "a.jpg")
+    x, y = drawn_point(obj, 1.0, "a.jpg")
     assert depth[int(y), int(x)] >= depth.max() - 1.0
 
 
