@@ -154,6 +154,30 @@ def mirror(rgb: np.ndarray, ref: dict) -> tuple[np.ndarray, dict]:
     return rgb[:, ::-1].copy(), ref
 
 
+def rotate(rgb: np.ndarray, ref: dict, quarter_turns: int) -> tuple[np.ndarray, dict]:
+    """The photo and its reference turned by ``quarter_turns`` x 90 degrees counter-clockwise
+    (the object point as well)."""
+    k = int(quarter_turns) % 4
+
+    def turn(m):
+        return None if m is None else np.ascontiguousarray(np.rot90(m, k))
+
+    pt = ref["point"]
+    if pt is not None:
+        x, y = pt
+        h, w = rgb.shape[:2]
+        for _ in range(k):  # (x, y) in an (h, w) image -> (y, w - 1 - x) in the (w, h) one
+            x, y, h, w = y, w - 1 - x, w, h
+        pt = (x, y)
+    ref = {
+        **ref,
+        "hand": [turn(h) for h in ref["hand"]],
+        "object": turn(ref["object"]),
+        "point": pt,
+    }
+    return turn(rgb), ref
+
+
 def iou(a: np.ndarray | None, b: np.ndarray | None) -> float:
     """Mask IoU, 0 when either mask is missing (None) or both are empty."""
     from easyhoi.geometry.masks import mask_iou
@@ -484,6 +508,14 @@ def main(argv=None) -> int:
         "pixels are the same)",
     )
     ap.add_argument(
+        "--rotate",
+        type=int,
+        default=0,
+        choices=(0, 1, 2, 3),
+        help="turn every photo by this many quarter turns counter-clockwise first (hands and "
+        "objects are seen at every angle; the pixels are the same)",
+    )
+    ap.add_argument(
         "--choices",
         action="store_true",
         help="also pick each object region the automatic path offers (--object-choice K) and "
@@ -537,6 +569,8 @@ def main(argv=None) -> int:
         ref = fit_to(ref, rgb.shape[:2])
         if args.mirror:
             rgb, ref = mirror(rgb, ref)
+        if args.rotate:
+            rgb, ref = rotate(rgb, ref, args.rotate)
         if args.click_depth is not None and ref["object"] is not None:
             from tests.perception_refs import drawn_point  # on the path since reference()
 

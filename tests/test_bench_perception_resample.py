@@ -54,6 +54,30 @@ def test_mirror_flips_the_photo_and_its_reference_together():
     assert bench.mirror(rgb, {**ref, "object": None, "point": None})[1]["object"] is None
 
 
+def test_rotate_turns_the_photo_and_its_reference_together():
+    bench = load_script("benchmarks/bench_perception.py")
+    rgb = np.zeros((300, 500, 3), np.uint8)
+    rgb[100:120, 20:60] = (255, 0, 0)  # a red bar near the left edge
+    obj = rgb[..., 0] > 0
+    ref = {"hand": [obj.copy()], "object": obj, "point": (39.0, 110.0)}
+    one, one_ref = bench.rotate(rgb, ref, 1)
+    # a quarter turn counter-clockwise: the left edge becomes the bottom edge
+    assert one.shape == (500, 300, 3)
+    assert one[500 - 1 - 39, 110, 0] == 255 and one_ref["point"] == (110.0, 460.0)
+    for k in range(4):
+        t_rgb, t_ref = bench.rotate(rgb, ref, k)
+        x, y = (int(v) for v in t_ref["point"])
+        # the point stays on the bar, the masks turn with the photo
+        assert t_rgb[y, x, 0] == 255 and t_ref["object"][y, x] and t_ref["hand"][0][y, x]
+        assert np.array_equal(t_ref["object"], t_rgb[..., 0] > 0)
+    # four quarter turns give the original back; the input is left as it was
+    back_rgb, back_ref = rgb, ref
+    for _ in range(4):
+        back_rgb, back_ref = bench.rotate(back_rgb, back_ref, 1)
+    assert np.array_equal(back_rgb, rgb) and back_ref["point"] == ref["point"]
+    assert bench.rotate(rgb, {**ref, "object": None, "point": None}, 2)[1]["object"] is None
+
+
 def test_a_drawn_click_lies_inside_the_object_deep_enough_and_is_seeded():
     from scipy import ndimage
 

@@ -1,0 +1,36 @@
+"""The ROI search finds a hand at any angle: the upside-down photo gives the upright keypoints."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mediapipe")
+
+from easyhoi.io.image import load_image  # noqa: E402
+from easyhoi.perception import mediapipe_hand as mph  # noqa: E402
+
+
+def test_roi_windows_cover_every_quarter_turn():
+    turns = sorted(round(r / (np.pi / 2)) % 4 for r in mph._ROI_ROTATIONS)
+    assert turns == [0, 1, 2, 3]
+
+
+def test_upside_down_hand_found_by_roi_search(shared_data):
+    # grey-scale controller photo: the palm detector misses, only the ROI search finds the hand
+    rgb = load_image(shared_data / "images" / "easyhoi-game-controller.jpg").rgb
+    h, w = rgb.shape[:2]
+    detector = mph.MediaPipeHands(mirror_pass=False)
+    upright = detector.detect(rgb)
+    assert upright and upright[0].meta["pass"] == "roi_search"
+    turned = detector.detect(np.ascontiguousarray(rgb[::-1, ::-1]))
+    assert turned and turned[0].meta["pass"] == "roi_search"
+    # the turned keypoints mapped back onto the upright photo (with the upright and both
+    # sideways windows alone the ROI search finds a skeleton 6 % of the hand off at the median
+    # and 48 % at the worst keypoint)
+    back = np.array([w - 1, h - 1]) - turned[0].keypoints2d
+    ref = upright[0].keypoints2d
+    size = float(np.ptp(ref, axis=0).max())
+    err = np.linalg.norm(back - ref, axis=1)
+    assert np.median(err) < 0.03 * size, (np.median(err), size)
+    assert err.max() < 0.15 * size, (err.max(), size)
