@@ -178,6 +178,33 @@ def rotate(rgb: np.ndarray, ref: dict, quarter_turns: int) -> tuple[np.ndarray, 
     return turn(rgb), ref
 
 
+def crop_around(rgb: np.ndarray, ref: dict, grow: float) -> tuple[np.ndarray, dict]:
+    """The photo cut to the box around the reference's holding hands and held object, its
+    sides grown ``grow`` times about its centre (within the photo), as hand-object datasets
+    crop their frames; the reference follows (the object point shifted). Photos without a held
+    object are cut around their hands."""
+    holding = [h for h, holds in zip(ref["hand"], ref["holds"], strict=True) if holds]
+    parts = holding or list(ref["hand"])
+    if ref["object"] is not None:
+        parts.append(ref["object"])
+    ys, xs = np.nonzero(np.logical_or.reduce(parts))
+    h, w = rgb.shape[:2]
+    cx, cy = (xs.min() + xs.max() + 1) / 2, (ys.min() + ys.max() + 1) / 2
+    hw = grow * (xs.max() + 1 - xs.min()) / 2
+    hh = grow * (ys.max() + 1 - ys.min()) / 2
+    x0, x1 = max(0, int(round(cx - hw))), min(w, int(round(cx + hw)))
+    y0, y1 = max(0, int(round(cy - hh))), min(h, int(round(cy + hh)))
+
+    def cut(m):
+        return None if m is None else np.ascontiguousarray(m[y0:y1, x0:x1])
+
+    pt = ref["point"]
+    if pt is not None:
+        pt = (pt[0] - x0, pt[1] - y0)
+    ref = {**ref, "hand": [cut(m) for m in ref["hand"]], "object": cut(ref["object"]), "point": pt}
+    return cut(rgb), ref
+
+
 def iou(a: np.ndarray | None, b: np.ndarray | None) -> float:
     """Mask IoU, 0 when either mask is missing (None) or both are empty."""
     from easyhoi.geometry.masks import mask_iou
@@ -516,6 +543,13 @@ def main(argv=None) -> int:
         "objects are seen at every angle; the pixels are the same)",
     )
     ap.add_argument(
+        "--crop",
+        type=float,
+        default=None,
+        help="cut every photo to the box around its reference holding hands and held object, "
+        "grown this many times (>= 1; as hand-object datasets crop their frames)",
+    )
+    ap.add_argument(
         "--choices",
         action="store_true",
         help="also pick each object region the automatic path offers (--object-choice K) and "
@@ -545,6 +579,8 @@ def main(argv=None) -> int:
         ap.error("--click-draw takes K >= 0 and needs --click-depth")
     if not args.resample > 0:
         ap.error(f"--resample must be > 0, got {args.resample}")
+    if args.crop is not None and not args.crop >= 1:
+        ap.error(f"--crop must be >= 1, got {args.crop}")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
     from easyhoi.io.image import load_image
@@ -571,6 +607,8 @@ def main(argv=None) -> int:
             rgb, ref = mirror(rgb, ref)
         if args.rotate:
             rgb, ref = rotate(rgb, ref, args.rotate)
+        if args.crop:
+            rgb, ref = crop_around(rgb, ref, args.crop)
         if args.click_depth is not None and ref["object"] is not None:
             from tests.perception_refs import drawn_point  # on the path since reference()
 

@@ -1,9 +1,11 @@
-"""``bench_perception.py --resample``: the photo at another pixel size, as the loader would
-keep it, with the reference (masks and object point) following it."""
+"""``bench_perception.py``'s photo transforms (``--resample``, ``--mirror``, ``--rotate``,
+``--crop``) and drawn clicks: the photo changed as the loader or a dataset would change it, with
+the reference (masks and object point) following it."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from tests.helpers import load_script
 
@@ -78,6 +80,28 @@ def test_rotate_turns_the_photo_and_its_reference_together():
     assert bench.rotate(rgb, {**ref, "object": None, "point": None}, 2)[1]["object"] is None
 
 
+def test_crop_cuts_around_the_holding_hand_and_the_object():
+    bench = load_script("benchmarks/bench_perception.py")
+    rgb = np.zeros((300, 500, 3), np.uint8)
+    hand, other, obj = (np.zeros((300, 500), bool) for _ in range(3))
+    hand[100:150, 100:150] = True
+    other[0:20, 0:20] = True  # a hand that holds nothing: left out of the box
+    obj[140:160, 150:250] = True
+    rgb[obj] = 255
+    ref = {"hand": [hand, other], "holds": [True, False], "object": obj, "point": (200.0, 150.0)}
+    cut, cut_ref = bench.crop_around(rgb, ref, 1.0)
+    # the box of the hand and the object: rows 100-159, columns 100-249
+    assert cut.shape == (60, 150, 3) and cut_ref["point"] == (100.0, 50.0)
+    assert cut_ref["object"].sum() == obj.sum() and cut_ref["hand"][0].sum() == hand.sum()
+    assert cut[50, 100, 0] == 255 and cut_ref["object"][50, 100]
+    # grown 2x about its centre (rows 70-189, columns 25-324), within the photo
+    grown, grown_ref = bench.crop_around(rgb, ref, 2.0)
+    assert grown.shape == (120, 300, 3) and grown_ref["point"] == (175.0, 80.0)
+    assert bench.crop_around(rgb, ref, 100.0)[0].shape == rgb.shape
+    with pytest.raises(SystemExit):
+        bench.main(["--crop", "0.5"])
+
+
 def test_a_drawn_click_lies_inside_the_object_deep_enough_and_is_seeded():
     from scipy import ndimage
 
@@ -98,8 +122,6 @@ def test_a_drawn_click_lies_inside_the_object_deep_enough_and_is_seeded():
 
 
 def test_click_draw_needs_click_depth_and_a_count():
-    import pytest
-
     bench = load_script("benchmarks/bench_perception.py")
     for argv in (["--click-draw", "2"], ["--click-depth", "0.5", "--click-draw", "-1"],
                  ["--click-depth", "1.5"]):  # fmt: skip

@@ -1,4 +1,5 @@
-"""The ROI search finds a hand at any angle: the upside-down photo gives the upright keypoints."""
+"""The ROI search finds a hand at any angle and at any size in the frame: the upside-down photo
+and the photo cut to the hand give the keypoints of the photo as taken."""
 
 from __future__ import annotations
 
@@ -34,3 +35,21 @@ def test_upside_down_hand_found_by_roi_search(shared_data):
     err = np.linalg.norm(back - ref, axis=1)
     assert np.median(err) < 0.03 * size, (np.median(err), size)
     assert err.max() < 0.15 * size, (err.max(), size)
+
+
+def test_hand_filling_the_frame_found_by_roi_search(shared_data):
+    rgb = load_image(shared_data / "images" / "easyhoi-game-controller.jpg").rgb
+    detector = mph.MediaPipeHands(mirror_pass=False)
+    ref = detector.detect(rgb)[0].keypoints2d
+    # the photo cut to the hand's keypoints, grown by a fifth: the hand fills the frame, and no
+    # window smaller than the whole photo contains it (the two smaller sizes alone find nothing)
+    lo, hi = ref.min(0), ref.max(0)
+    c, half = (lo + hi) / 2, 0.6 * (hi - lo)
+    x0, y0 = np.maximum(0, np.floor(c - half)).astype(int)
+    x1, y1 = np.minimum([rgb.shape[1], rgb.shape[0]], np.ceil(c + half)).astype(int)
+    cut = np.ascontiguousarray(rgb[y0:y1, x0:x1])
+    found = detector.detect(cut)
+    assert found and found[0].meta["pass"] == "roi_search"
+    err = np.linalg.norm(found[0].keypoints2d + [x0, y0] - ref, axis=1)
+    size = float(np.ptp(ref, axis=0).max())
+    assert np.median(err) < 0.03 * size and err.max() < 0.15 * size, (err, size)

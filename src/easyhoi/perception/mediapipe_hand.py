@@ -13,11 +13,12 @@ Two passes:
    hand of `ihoi-demo_09`) and no hand that is not there. One more palm-pipeline run per photo
    (about 0.04 s CPU).
 2. When the palm detector finds nothing (gloves, grey-scale photos, hands cut by the object), an
-   ROI search: the landmark model alone is run on square windows over a grid of positions, two
-   sizes and four rotations (the landmark model reports a hand only when its own presence score
-   exceeds 0.5). Every hit is refined twice by re-cropping around its own landmarks (as MediaPipe's
-   tracking does between frames), hits are clustered by keypoint centre, and each cluster with
-   enough votes becomes one hand. The window grid is deterministic.
+   ROI search: the landmark model alone is run on square windows over a grid of positions, three
+   sizes (the largest the whole photo) and four rotations (the landmark model reports a hand only
+   when its own presence score exceeds 0.5). Every hit is refined twice by re-cropping around its
+   own landmarks (as MediaPipe's tracking does between frames), hits are clustered by keypoint
+   centre, and each cluster with enough votes becomes one hand. The window grid is
+   deterministic.
 
 Conventions of the output (:class:`~easyhoi.perception.base.HandDetection`):
 
@@ -79,11 +80,12 @@ logger = logging.getLogger(__name__)
 MEDIAPIPE_TO_OPENPOSE = tuple(range(21))
 
 #: ROI search windows: side as a fraction of the image's longer side, and rotations (radians).
-#: Windows overlap by half their side. The landmark model finds a hand that lies within about
-#: 45 degrees of its window's upright, and hands are photographed at every angle (fingers down
-#: when a cup is held by its rim or a bag is carried), so the windows are turned by quarter
-#: turns: upright, both sideways and upside down.
-_ROI_SIZES = (0.35, 0.6)
+#: Windows overlap by half their side; the largest is the whole photo, for a photo cropped to the
+#: hand (as hand-object datasets crop their frames), whose hand no smaller window contains. The
+#: landmark model finds a hand that lies within about 45 degrees of its window's upright, and
+#: hands are photographed at every angle (fingers down when a cup is held by its rim or a bag is
+#: carried), so the windows are turned by quarter turns: upright, both sideways and upside down.
+_ROI_SIZES = (0.35, 0.6, 1.0)
 _ROI_ROTATIONS = (0.0, math.pi / 2, -math.pi / 2, math.pi)
 
 #: Crops of the confidence measure, relative to MediaPipe's own crop around the hand:
