@@ -17,23 +17,32 @@ $(STAMP): pyproject.toml constraints.txt
 	$(PIP) install -q -c constraints.txt -e '.[dev]'
 	@touch $(STAMP)
 
-venv: $(STAMP)
+# The compiled kernels built ahead of time for this machine (src/easyhoi/aot.py): optional, so
+# a failed build (no C compiler) only leaves the numba kernels in use.
+AOT := src/easyhoi/_aot_kernels.json
+AOT_SRC := src/easyhoi/aot.py src/easyhoi/render/_numba_kernels.py \
+	src/easyhoi/perception/shapes/_hull_kernel.py src/easyhoi/viz/_normals_kernel.py
 
-demo: $(STAMP)
+$(AOT): $(STAMP) $(AOT_SRC)
+	-$(BIN)/python -m easyhoi.aot
+
+venv: $(STAMP) $(AOT)
+
+demo: $(STAMP) $(AOT)
 	$(BIN)/easyhoi example --seed 4 --out outputs/demo
 
-test: $(STAMP)
+test: $(STAMP) $(AOT)
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
 
-test-fast: $(STAMP)
+test-fast: $(STAMP) $(AOT)
 	$(BIN)/python -m pytest -q -m "not slow" $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks scripts
 	$(BIN)/ruff format --check src tests benchmarks scripts
 
-bench: $(STAMP)
+bench: $(STAMP) $(AOT)
 	@for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) outputs .pytest_cache
+	rm -rf $(VENV) outputs .pytest_cache src/easyhoi/_aot_kernels*

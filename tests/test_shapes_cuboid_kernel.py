@@ -39,8 +39,8 @@ def _reference_inside(hull32: np.ndarray, shape) -> np.ndarray:
 
 def _kernel_sums(hull32, w_a, w_b):
     """The kernel's sums of two quarter-multiple weight maps, as float64."""
-    qa = _hull_kernel.row_prefix_sums(np.round(4 * w_a).astype(np.int64))
-    qb = _hull_kernel.row_prefix_sums(np.round(4 * w_b).astype(np.int64))
+    qa = cuboid.row_prefix_sums(np.round(4 * w_a).astype(np.int64))
+    qb = cuboid.row_prefix_sums(np.round(4 * w_b).astype(np.int64))
     a, b, ok = _hull_kernel.hull_weight_sums(np.ascontiguousarray(hull32), qa, qb)
     assert ok
     return a / 4.0, b / 4.0
@@ -111,7 +111,7 @@ def test_shoelace_adds_in_numpys_order():
 
 
 def test_kernel_declines_non_finite_hulls():
-    q = _hull_kernel.row_prefix_sums(np.ones((4, 4), np.int64))
+    q = cuboid.row_prefix_sums(np.ones((4, 4), np.int64))
     hull = np.array([[0, 0], [np.inf, 0], [0, 2]], np.float32)
     assert _hull_kernel.hull_weight_sums(hull, q, q) == (0, 0, False)
 
@@ -142,7 +142,7 @@ def test_objective_equals_the_plain_formulation_bit_for_bit(monkeypatch):
 def test_a_failing_kernel_warns_once_and_the_numpy_path_takes_over(monkeypatch):
     from numba.core.errors import NumbaError
 
-    from easyhoi import compiled
+    from easyhoi import aot, compiled
 
     calls = []
 
@@ -151,6 +151,7 @@ def test_a_failing_kernel_warns_once_and_the_numpy_path_takes_over(monkeypatch):
         raise NumbaError("no LLVM here")
 
     monkeypatch.setattr(compiled, "_FAILED", set())  # this test's failure stays in it
+    monkeypatch.setitem(aot._STATE, "mod", None)  # the numba function, not the built export
     monkeypatch.setattr(_hull_kernel, "hull_weight_sums", failing)
     wf = _frames()[0]
     rng = np.random.default_rng(5)

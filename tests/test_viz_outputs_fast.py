@@ -11,7 +11,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from easyhoi import compiled
+from easyhoi import aot, compiled
 from easyhoi.errors import InvalidInputError
 from easyhoi.viz import masks, shade
 from easyhoi.viz.chart import _densify
@@ -143,6 +143,7 @@ def test_a_failing_corner_sums_kernel_warns_once_and_is_not_retried(monkeypatch)
 
     monkeypatch.setattr(kernel, "corner_sums", failing)
     monkeypatch.setattr(compiled, "_FAILED", set())  # this test's failure stays in it
+    monkeypatch.setitem(aot._STATE, "mod", None)  # the numba function, not the built export
     v, f = (np.asarray(a) for a in _meshes()[0])
     f = f.astype(np.int64)
     cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])

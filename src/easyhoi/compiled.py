@@ -26,10 +26,16 @@ _FAILED: set[str] = set()
 
 
 def kernel(module: str, name: str):
-    """The compiled function ``name`` of ``module``; None when the module cannot be imported
-    or the kernel failed in this process."""
+    """The compiled function ``name`` of ``module`` (built ahead of time where
+    :mod:`easyhoi.aot` has it for this machine); None when the module cannot be imported or the
+    kernel failed in this process."""
     if name in _FAILED:
         return None
+    from easyhoi import aot
+
+    built = aot.kernel(module, name)
+    if built is not None:
+        return built
     try:
         mod = importlib.import_module(module)
     except ImportError:

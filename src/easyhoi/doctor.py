@@ -89,7 +89,11 @@ def _kernels_line() -> str:
         import numba  # noqa: F401 - the compiled kernels need only numba itself
     except Exception as exc:  # noqa: BLE001 - report anything that fails to import
         return f"renderer kernels: torch (slower fallback; numba not usable: {type(exc).__name__})"
-    return "renderer kernels: numba (compiled)"
+    from easyhoi import aot
+
+    if aot.loaded() is not None:
+        return "renderer kernels: numba (compiled ahead of time for this machine)"
+    return "renderer kernels: numba (compiled; `python -m easyhoi.aot` builds them ahead of time)"
 
 
 def doctor_lines(version: str) -> list[str]:

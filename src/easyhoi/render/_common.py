@@ -25,13 +25,36 @@ BACKEND = {"name": "auto"}
 _NUMBA: dict[str, object] = {}
 
 
+class _BuiltKernels:
+    """The renderer's kernels from the module built ahead of time (:mod:`easyhoi.aot`), by the
+    names of :mod:`easyhoi.render._numba_kernels`; a call of other argument types goes to numba."""
+
+    def __init__(self):
+        self._kernels = {}
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        if name not in self._kernels:
+            k = compiled.kernel("easyhoi.render._numba_kernels", name)
+            if k is None:
+                raise AttributeError(name)
+            self._kernels[name] = k
+        return self._kernels[name]
+
+
 def numba_kernels():
-    """The compiled-kernel module, or None when numba is missing or broken (torch is used)."""
+    """The compiled kernels (built ahead of time when :mod:`easyhoi.aot` has them for this
+    machine, else numba's module), or None when numba is missing or broken (torch is used)."""
     if "mod" not in _NUMBA:
-        try:
-            from easyhoi.render import _numba_kernels as mod
-        except Exception:  # noqa: BLE001 - any import failure falls back to torch
-            mod = None
+        from easyhoi import aot
+
+        mod = _BuiltKernels() if aot.loaded() is not None else None
+        if mod is None:
+            try:
+                from easyhoi.render import _numba_kernels as mod
+            except Exception:  # noqa: BLE001 - any import failure falls back to torch
+                mod = None
         _NUMBA["mod"] = mod
     return _NUMBA["mod"]
 

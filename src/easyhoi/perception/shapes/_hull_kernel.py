@@ -23,13 +23,6 @@ import numba
 import numpy as np
 
 
-def row_prefix_sums(q: np.ndarray) -> np.ndarray:
-    """(H, W + 1) int64 ``out[r, c] = q[r, :c].sum()`` of an (H, W) integer map."""
-    out = np.zeros((q.shape[0], q.shape[1] + 1), np.int64)
-    np.cumsum(q, axis=1, out=out[:, 1:])
-    return out
-
-
 @numba.njit(cache=True)
 def _shoelace(px, py):
     """``np.sum(px * roll(py, -1) - roll(px, -1) * py)`` with NumPy's order of additions.
@@ -110,7 +103,8 @@ def hull_weight_sums(hull, sums_a, sums_b):
     ``p -> q``, ``s ((q0 - p0) (v - p1) - (q1 - p1) (u - p0)) >= 0``, ``s`` the sign of the
     hull's orientation (+1 when the shoelace sum is ``>= 0``; folded into the edge vectors,
     an exact negation). ``sums_a``, ``sums_b``: (H, W + 1) row-wise prefix sums of the maps
-    (:func:`row_prefix_sums`). ``ok`` is False (and the sums 0) when a vertex is not finite.
+    (:func:`easyhoi.perception.shapes.cuboid.row_prefix_sums`). ``ok`` is False (and the sums
+    0) when a vertex is not finite.
     """
     n = hull.shape[0]
     height, width = sums_a.shape[0], sums_a.shape[1] - 1

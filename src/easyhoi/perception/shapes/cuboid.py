@@ -135,6 +135,13 @@ def _hull_pixels(x: np.ndarray, shape) -> tuple[slice, slice, np.ndarray] | None
     return slice(r0, r1), slice(c0, c1), inside
 
 
+def row_prefix_sums(q: np.ndarray) -> np.ndarray:
+    """(H, W + 1) int64 ``out[r, c] = q[r, :c].sum()`` of an (H, W) integer map."""
+    out = np.zeros((q.shape[0], q.shape[1] + 1), np.int64)
+    np.cumsum(q, axis=1, out=out[:, 1:])
+    return out
+
+
 def _hull_kernel():
     """:func:`._hull_kernel.hull_weight_sums`, or None where numba cannot be imported or the
     kernel failed to compile or run in this process (:mod:`easyhoi.compiled`; the NumPy path
@@ -166,8 +173,6 @@ class _SilhouetteIoU:
         self.mask_weight = self.w_in.sum()
         self.kernel = _hull_kernel() if self.exact else None
         if self.kernel is not None:
-            from easyhoi.perception.shapes._hull_kernel import row_prefix_sums
-
             self.quarters_in = row_prefix_sums(np.round(4.0 * self.w_in).astype(np.int64))
             self.quarters_out = row_prefix_sums(np.round(4.0 * self.w_out).astype(np.int64))
 
