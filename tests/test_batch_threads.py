@@ -77,3 +77,46 @@ def test_workers_start_with_the_modules_their_worker_preloads():
     assert out.returncode == 0, out.stderr
     infos = json.loads(out.stdout.strip().splitlines()[-1])
     assert len(infos) == 2 and all(i["preloaded"] for i in infos)
+
+
+def test_a_local_batch_starts_its_fork_server_before_its_own_set_up(tmp_path, monkeypatch):
+    """The fork server's imports (torch, the pipeline) overlap the batch process's set-up
+    (settings and hand model), and the batch process sets no torch threads of its own; the
+    inline engine reconstructs in this process and starts no fork server."""
+    import easyhoi.distributed as dist
+    from easyhoi import cli
+
+    (tmp_path / "a.jpg").write_bytes(b"not decoded here")
+    calls = []
+    monkeypatch.setattr(dist, "start_fork_server", lambda preload: calls.append(("fork", preload)))
+    monkeypatch.setattr(cli, "run_from_args", lambda args: calls.append(("settings",)) or "run")
+    monkeypatch.setattr(cli, "_run_batch", lambda *a, **k: calls.append(("run",)) or 0)
+    parser = build_parser()
+    for engine, want in (("local", ["fork", "settings", "run"]), ("inline", ["settings", "run"])):
+        calls.clear()
+        args = parser.parse_args(["batch", str(tmp_path), "--out", str(tmp_path / "o"),
+                                  "--engine", engine])  # fmt: skip
+        assert args.uses_torch(args) is (engine == "inline")
+        assert cli.cmd_batch(args) == 0
+        assert [c[0] for c in calls] == want
+        if engine == "local":
+            assert "torch" in calls[0][1]  # the preload the pool would give it
+
+
+def test_the_fork_server_started_early_serves_the_pool(tmp_path):
+    """A fork server started by start_fork_server is the one the pool's workers come from."""
+    from easyhoi.distributed import start_fork_server
+
+    if not start_fork_server(()):
+        pytest.skip("no fork server on this platform")
+    tasks = [Task(f"p{i}", f"p{i}.jpg", f"out/p{i}", i) for i in range(2)]
+    results = list(execute(tasks, _pid_worker, engine="local", workers=1))
+    assert all(r.ok for r in results), [r.error for r in results]
+    from multiprocessing import forkserver
+
+    # the workers' parent is the fork server that was already running
+    assert {r.info["ppid"] for r in results} == {forkserver._forkserver._forkserver_pid}
+
+
+def _pid_worker(task: Task) -> dict:
+    return {"ppid": os.getppid()}

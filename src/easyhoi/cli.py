@@ -162,6 +162,11 @@ def cmd_batch(args) -> int:
     """Reconstruct every photo of a folder; ``manifest.jsonl``/``.csv`` record each outcome."""
     folder = Path(args.folder)
     images = _batch_images(args)
+    if args.engine == "local":
+        from easyhoi.batch import ReconstructWorker
+        from easyhoi.distributed import start_fork_server
+
+        start_fork_server(ReconstructWorker.preload)  # its imports overlap the set-up below
     prompts = None
     if args.prompts:
         from easyhoi.batch import plan_tasks
@@ -220,6 +225,12 @@ def _run_batch(args, images: list[Path], root: Path | None, run, prompts=None) -
         bar.close()
     _say(args, f"batch: {summary.line()}; manifest: {summary.manifest}")
     return summary.exit_code
+
+
+def _batch_in_process(args) -> bool:
+    """Whether ``batch`` reconstructs in this process (the inline engine) rather than in worker
+    processes."""
+    return getattr(args, "engine", "local") == "inline"
 
 
 def _batch_workers(args) -> int:
@@ -563,7 +574,9 @@ def _set_torch_threads(args) -> None:
 
     easyhoi's tensors are small (a few thousand vertices, <= 256 px masks): on this workload extra
     intra-op threads cost more in synchronisation than they save, badly so on a loaded machine.
-    Commands that never use torch (``doctor``) do not import it: importing torch costs a second.
+    Commands that never use torch in this process (``doctor``, a ``batch`` whose workers are
+    other processes, which set their own threads) do not import it: importing torch costs a
+    second, and a batch's worker processes import it anyway.
     """
     import os
 
@@ -572,7 +585,10 @@ def _set_torch_threads(args) -> None:
         n = max(1, int(raw))
     except ValueError:
         raise InvalidInputError(f"EASYHOI_TORCH_THREADS must be an integer, got {raw!r}") from None
-    if getattr(args, "uses_torch", True):
+    uses = getattr(args, "uses_torch", True)
+    if callable(uses):
+        uses = uses(args)
+    if uses:
         import torch
 
         torch.set_num_threads(n)
@@ -684,7 +700,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
     _add_picture_options(p)
     _add_common(p)
-    p.set_defaults(func=cmd_batch, check_early=_batch_images)
+    p.set_defaults(func=cmd_batch, check_early=_batch_images, uses_torch=_batch_in_process)
 
     p = sub.add_parser(
         "example",

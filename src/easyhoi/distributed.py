@@ -316,6 +316,25 @@ def _new_pool(
     )  # fmt: skip
 
 
+def start_fork_server(preload: tuple[str, ...] = ()) -> bool:
+    """Start the local engine's fork server now, importing ``preload`` (as :func:`_new_pool`
+    would at the first worker); True when there is one (False where only spawn exists).
+
+    A batch calls this before its own set-up (the run's settings, the hand model: torch in the
+    batch process), so that the fork server's imports run on the other core meanwhile instead
+    of after it: the workers start about a second earlier. The pool created later finds the
+    server running with the same preload.
+    """
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return False
+    from multiprocessing import forkserver
+
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["easyhoi.distributed", *preload])
+    forkserver.ensure_running()
+    return True
+
+
 def _preload(worker) -> tuple[str, ...]:
     """Modules a worker asks the fork server to import (its ``preload`` attribute, if any)."""
     names = getattr(worker, "preload", ())
