@@ -187,3 +187,15 @@ def test_a_fresh_process_with_the_built_kernels_does_not_import_numba():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "False"
+
+
+def test_the_renderers_kernels_fall_back_to_numba_by_name():
+    """A renderer kernel name the built module does not export is numba's function."""
+    from easyhoi.render import _common, _numba_kernels
+
+    k = _common._BuiltKernels()
+    assert k.pair_count is _numba_kernels.pair_count  # a plain function: never exported
+    if aot.loaded() is not None:
+        assert isinstance(k.zbuffer, aot.Kernel)
+    with pytest.raises(AttributeError):
+        k._private  # noqa: B018

@@ -27,7 +27,8 @@ _NUMBA: dict[str, object] = {}
 
 class _BuiltKernels:
     """The renderer's kernels from the module built ahead of time (:mod:`easyhoi.aot`), by the
-    names of :mod:`easyhoi.render._numba_kernels`; a call of other argument types goes to numba."""
+    names of :mod:`easyhoi.render._numba_kernels`; a call of other argument types, or a name the
+    built module lacks, goes to numba's module."""
 
     def __init__(self):
         self._kernels = {}
@@ -38,7 +39,9 @@ class _BuiltKernels:
         if name not in self._kernels:
             k = compiled.kernel("easyhoi.render._numba_kernels", name)
             if k is None:
-                raise AttributeError(name)
+                from easyhoi.render import _numba_kernels
+
+                k = getattr(_numba_kernels, name)
             self._kernels[name] = k
         return self._kernels[name]
 
