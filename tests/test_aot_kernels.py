@@ -199,3 +199,12 @@ def test_the_renderers_kernels_fall_back_to_numba_by_name():
         assert isinstance(k.zbuffer, aot.Kernel)
     with pytest.raises(AttributeError):
         k._private  # noqa: B018
+
+
+def test_doctor_says_which_kernels_are_in_use(monkeypatch):
+    from easyhoi import doctor
+
+    monkeypatch.setitem(aot._STATE, "mod", None)
+    assert "python -m easyhoi.aot" in doctor._kernels_line()
+    monkeypatch.setitem(aot._STATE, "mod", object())
+    assert "ahead of time for this machine" in doctor._kernels_line()
