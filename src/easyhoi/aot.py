@@ -208,47 +208,59 @@ def _wrapper(fn, n: int, returns: bool):
 
 def build(out_dir: Path = PACKAGE, verbose: bool = False) -> Path:
     """Compile :data:`EXPORTS` into ``out_dir/_aot_kernels*.so`` and write its stamp; returns the
-    module's path. Raises RuntimeError when this machine cannot (no C compiler, no /proc/cpuinfo).
+    module's path. The module is compiled in a temporary folder and renamed into place, so a
+    failed build leaves the previous one (a process never sees half a file). Raises RuntimeError
+    when this machine cannot (no C compiler, no /proc/cpuinfo, no numba).
     """
+    import shutil
+    import tempfile
     import warnings
 
     stamp = _stamp()
     if stamp is None:
         raise RuntimeError("the CPU's flags cannot be read (/proc/cpuinfo); nothing built")
     out_dir = Path(out_dir)
-    for old in [*out_dir.glob(f"{MODULE}*.so"), out_dir / f"{MODULE}.json"]:
-        old.unlink(missing_ok=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # numba.pycc announces its own deprecation
-        import llvmlite.binding as ll
-        from numba.pycc import CC
-
-        cc = CC(MODULE)
-        cc.output_dir = str(out_dir)
-        cc.target_cpu = ll.get_host_cpu_name()
-        cc.verbose = verbose
-        for module, name, ret, args in EXPORTS:
-            fn = getattr(importlib.import_module(module), name)
-            res = ret or "void"
-            if isinstance(ret, tuple):
-                res = f"Tuple(({', '.join(ret)}))"
-            sig = f"{res}({', '.join(args)})"
-            cc.export(_export_name(module, name, args), sig)(_wrapper(fn, len(args), bool(ret)))
         try:
-            cc.compile()
-        except Exception as exc:  # noqa: BLE001 - distutils/compiler failures have no common type
-            raise RuntimeError(
-                f"compiling the kernels failed: {type(exc).__name__}: {exc}"
-            ) from exc
-    built = sorted(out_dir.glob(f"{MODULE}*.so"))
-    if not built:
-        raise RuntimeError("the compiler wrote no module")
+            import llvmlite.binding as ll
+            from numba.pycc import CC
+        except ImportError as exc:
+            raise RuntimeError(f"numba's ahead-of-time compiler is not available ({exc})") from exc
+
+        tmp_dir = Path(tempfile.mkdtemp(prefix=f".{MODULE}-", dir=out_dir))
+        try:
+            cc = CC(MODULE)
+            cc.output_dir = str(tmp_dir)
+            cc.target_cpu = ll.get_host_cpu_name()
+            cc.verbose = verbose
+            for module, name, ret, args in EXPORTS:
+                fn = getattr(importlib.import_module(module), name)
+                res = ret or "void"
+                if isinstance(ret, tuple):
+                    res = f"Tuple(({', '.join(ret)}))"
+                sig = f"{res}({', '.join(args)})"
+                wrapper = _wrapper(fn, len(args), bool(ret))
+                cc.export(_export_name(module, name, args), sig)(wrapper)
+            try:
+                cc.compile()
+            except Exception as exc:  # noqa: BLE001 - compiler failures have no common type
+                raise RuntimeError(
+                    f"compiling the kernels failed: {type(exc).__name__}: {exc}"
+                ) from exc
+            built = sorted(tmp_dir.glob(f"{MODULE}*.so"))
+            if not built:
+                raise RuntimeError("the compiler wrote no module")
+            target = out_dir / built[0].name
+            built[0].replace(target)
+        finally:
+            shutil.rmtree(tmp_dir, ignore_errors=True)
     if out_dir.resolve() == PACKAGE:
         tmp = STAMP.with_suffix(".json.tmp")
         tmp.write_text(json.dumps(stamp, indent=1) + "\n")
         tmp.replace(STAMP)
     _STATE.clear()
-    return built[0]
+    return target
 
 
 def main(argv: list[str] | None = None) -> int:
