@@ -322,8 +322,8 @@ def start_fork_server(preload: tuple[str, ...] = ()) -> bool:
 
     A batch calls this before its own set-up (the run's settings, the hand model: torch in the
     batch process), so that the fork server's imports run on the other core meanwhile instead
-    of after it: the workers start about a second earlier. The pool created later finds the
-    server running with the same preload.
+    of after it: the first photo starts about a second earlier. The pool created later finds
+    the server running with the same preload.
     """
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return False
