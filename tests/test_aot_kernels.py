@@ -162,6 +162,7 @@ def test_a_module_built_for_other_sources_or_turned_off_is_not_used(tmp_path, mo
 
 
 def test_a_fresh_process_with_the_built_kernels_does_not_import_numba():
+    """The renderer, the box fit and the pictures' corner normals all run on the built module."""
     if aot.loaded() is None:
         pytest.skip("the package's kernels are not built here (python -m easyhoi.aot)")
     code = textwrap.dedent(
@@ -180,6 +181,8 @@ def test_a_fresh_process_with_the_built_kernels_does_not_import_numba():
         depth_map(v, f, cam)
         m = np.zeros((60, 60), bool); m[15:45, 10:50] = True
         cuboid.fit(work_frame(m))
+        from easyhoi.viz.shade import corner_normals
+        corner_normals(v.numpy().astype(np.float64), f.numpy())
         assert get_backend() == "numba"
         print("numba" in sys.modules)
         """
