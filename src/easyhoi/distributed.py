@@ -300,18 +300,23 @@ def _check_picklable(worker) -> None:
 # ----------------------------------------------------------------------------------------------
 
 
+def _context(mp_context: str, preload: tuple[str, ...] = ()):
+    """The multiprocessing context of the local pool. For the fork server, ``preload`` is
+    imported once by the server (only applies when it starts), so every worker forked from it
+    starts with them: the worker's modules (torch and the pipeline for the reconstruction
+    worker) cost their import CPU once per batch instead of once per worker process. A module
+    that fails to import is skipped there."""
+    ctx = multiprocessing.get_context(mp_context)
+    if mp_context == "forkserver":
+        ctx.set_forkserver_preload(["easyhoi.distributed", *preload])
+    return ctx
+
+
 def _new_pool(
     workers: int, threads: int, mp_context: str, preload: tuple[str, ...] = ()
 ) -> ProcessPoolExecutor:
-    ctx = multiprocessing.get_context(mp_context)
-    if mp_context == "forkserver":
-        # imported once by the fork server (only applies when it starts), so every worker
-        # forked from it starts with them: the worker's ``preload`` modules (torch and the
-        # pipeline for the reconstruction worker) cost their import CPU once per batch instead
-        # of once per worker process. A module that fails to import is skipped there.
-        ctx.set_forkserver_preload(["easyhoi.distributed", *preload])
     return ProcessPoolExecutor(
-        max_workers=workers, mp_context=ctx, initializer=_init_worker,
+        max_workers=workers, mp_context=_context(mp_context, preload), initializer=_init_worker,
         initargs=(threads, os.getpid()),
     )  # fmt: skip
 
@@ -329,8 +334,7 @@ def start_fork_server(preload: tuple[str, ...] = ()) -> bool:
         return False
     from multiprocessing import forkserver
 
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["easyhoi.distributed", *preload])
+    _context("forkserver", preload)
     forkserver.ensure_running()
     return True
 
