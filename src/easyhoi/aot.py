@@ -256,9 +256,9 @@ def build(out_dir: Path = PACKAGE, verbose: bool = False) -> Path:
         finally:
             shutil.rmtree(tmp_dir, ignore_errors=True)
     if out_dir.resolve() == PACKAGE:
-        tmp = STAMP.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(stamp, indent=1) + "\n")
-        tmp.replace(STAMP)
+        from easyhoi.io.atomic import atomic_write_text
+
+        atomic_write_text(STAMP, json.dumps(stamp, indent=1) + "\n")
     _STATE.clear()
     return target
 
