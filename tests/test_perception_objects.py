@@ -132,6 +132,162 @@ def test_equal_arm_l_is_not_revolved():
     assert mesh.metadata["easyhoi"]["method"] == "inflation"
 
 
+def _bowl(shape=(120, 160)) -> np.ndarray:
+    """A bowl seen from the side: a trapezoid on a foot, symmetric about the column u = 80."""
+    m = np.zeros(shape, np.uint8)
+    cv2.fillPoly(m, [np.array([[30, 30], [130, 30], [105, 80], [55, 80]], np.int32)], 1)
+    m[80:90, 68:92] = 1
+    return m.astype(bool)
+
+
+def _column_axis_error(sym: dict, u0: float = 80.0, v0: float = 55.0) -> tuple[float, float]:
+    """(degrees between the found axis and the vertical, its distance from column ``u0`` at row
+    ``v0``, the bowl's middle)."""
+    a, c = np.asarray(sym["axis"]), np.asarray(sym["center"])
+    deg = float(np.degrees(np.arccos(min(1.0, abs(a[1])))))
+    if abs(a[1]) < 1e-9:
+        return deg, np.inf
+    return deg, float(abs(c[0] + a[0] / a[1] * (v0 - c[1]) - u0))
+
+
+def test_symmetry_axis_of_an_outline_cut_by_the_photo_edge():
+    """A bowl cut by the photo's right edge: unweighted, its centroid and principal axes lean
+    left and the cut side breaks the mirror symmetry; with the pixels beyond the edge weighted 0
+    the axis is found at the bowl's own centre and the revolved profile keeps the full width."""
+    from easyhoi.perception.shapes.revolution import profile, symmetry
+
+    m = _bowl()
+    w = np.ones(m.shape)
+    w[:, 118:] = 0.0  # beyond the photo's edge
+    cut = m.copy()
+    cut[:, 118:] = False
+    plain = symmetry(cut)
+    seen = symmetry(cut, weight=w, evidence_weight=w)
+    deg, shift = _column_axis_error(seen)
+    assert deg < 4.0 and shift < 2.0
+    assert seen["reflection_iou"] > 0.95 > plain["reflection_iou"]
+    # the rim's radius (50 px at the top row) survives the cut on its right half
+    s, r, _ = profile(cut, seen["center"], seen["axis"], 64, w)
+    v_top = seen["center"][1] + s * seen["axis"][1]
+    assert r[np.argmin(abs(v_top - 31))] == pytest.approx(50.0, abs=3.0)
+    _, r_plain, _ = profile(cut, seen["center"], seen["axis"], 64)
+    assert r_plain[np.argmin(abs(v_top - 31))] < 45.0  # half the cut chord
+
+
+def test_symmetry_axis_of_an_outline_hidden_by_the_hand():
+    """The same bowl with its lower left hidden by a hand (weight 0 on the hand outside the
+    mask): the axis stays at the bowl's centre and the mirror symmetry of what is seen on both
+    sides is near perfect (weighted as the axis search weighs it), while the evidence the family
+    choice gets, unweighted there, counts the hidden corner against it."""
+    from easyhoi.perception.shapes.revolution import symmetry
+
+    m = _bowl()
+    hand = np.zeros(m.shape, bool)
+    hand[45:100, 20:72] = True
+    seen_mask = m & ~hand
+    w = np.ones(m.shape)
+    w[hand & ~seen_mask] = 0.0
+    seen = symmetry(seen_mask, weight=w)
+    deg, shift = _column_axis_error(seen)
+    assert deg < 4.0 and shift < 2.0
+    # the evidence still counts the corner the hand hides (the amodal completion's job)
+    assert seen["reflection_iou"] < 0.9
+
+
+def test_bowl_cut_by_the_photo_edge_is_revolved_whole():
+    """A bowl whose right part lies beyond the photo: what the photo shows is judged for
+    symmetry, so it is still revolved, and at its whole width (100 px at the rim, as uncut),
+    not as a lump of the part in the photo."""
+    m = _bowl()
+    for right in (160, 110):  # uncut, then 20 px of the rim's 50 px right half cut off
+        mesh = SilhouetteReconstructor().reconstruct(None, m[:, :right])
+        md = mesh.metadata["easyhoi"]
+        assert md["method"] == "revolution"
+        width, height, depth = mesh.extents * md["pixels_per_unit"]
+        assert width == pytest.approx(100.0, abs=2.0)
+        assert depth == pytest.approx(width, rel=0.02)  # round cross-sections
+        assert height == pytest.approx(60.0, abs=2.0)
+
+
+def test_symmetry_evidence_needs_most_of_the_mirror_in_the_photo():
+    """The bowl cut just right of its axis (half of it beyond the photo): left out of the
+    evidence, the part beyond would let the half in the photo pass as symmetric about many
+    axes; with less than MIN_MIRROR_SEEN of its mirror image in the photo the evidence counts
+    every pixel. With a fifth of one side cut, the photo's edge stays out of the evidence."""
+    from easyhoi.perception.shapes.revolution import (
+        MIN_MIRROR_SEEN,
+        mirror_seen,
+        reflection_iou,
+        symmetry,
+    )
+
+    def cut_at(col: int) -> tuple[np.ndarray, np.ndarray]:
+        m, w = _bowl(), np.ones((120, 160))
+        m[:, col:], w[:, col:] = False, 0.0  # beyond the photo's edge
+        return m, w
+
+    half, w = cut_at(85)
+    sym = symmetry(half, weight=w, evidence_weight=w)
+    c, a = sym["center"], sym["axis"]
+    assert mirror_seen(half, w, c, a) < MIN_MIRROR_SEEN
+    plain = reflection_iou(half, np.ones(w.shape), c, a)
+    assert sym["reflection_iou"] == pytest.approx(plain, abs=1e-12)
+
+    bowl, w = cut_at(110)
+    sym = symmetry(bowl, weight=w, evidence_weight=w)
+    assert mirror_seen(bowl, w, sym["center"], sym["axis"]) >= MIN_MIRROR_SEEN
+    assert sym["reflection_iou"] > 0.95
+
+
+def test_reflection_iou_matches_the_reflected_masks():
+    """The weighted reflection IoU against a naive reference written out here: every pixel's
+    centre mirrored, the pixel it lands in looked up one by one (off the map: empty, with the
+    weight of the map's nearest pixel), then the weighted IoU over the pixels known on both
+    sides."""
+    from easyhoi.perception.shapes.revolution import reflection_iou
+
+    rng = np.random.default_rng(3)
+    H, W = 40, 50
+    m = rng.random((H, W)) > 0.5
+    w = rng.random((H, W))
+    for _ in range(10):
+        c = rng.random(2) * [W, H]
+        t = rng.random() * 2 * np.pi
+        a = np.array([np.cos(t), np.sin(t)])
+        inter = union = 0.0
+        for v in range(H):
+            for u in range(W):
+                p = np.array([u + 0.5, v + 0.5]) - c
+                q = 2 * (p @ a) * a - p + c
+                qu, qv = int(np.floor(q[0])), int(np.floor(q[1]))
+                on = 0 <= qu < W and 0 <= qv < H
+                mirrored = bool(m[qv, qu]) if on else False
+                ww = w[v, u] * w[min(max(qv, 0), H - 1), min(max(qu, 0), W - 1)]
+                inter += ww * (m[v, u] and mirrored)
+                union += ww * (m[v, u] or mirrored)
+        assert reflection_iou(m, w, c, a) == pytest.approx(inter / union, abs=1e-12)
+
+
+def test_symmetry_weights_of_one_are_the_plain_ious():
+    """With every weight 1 the weighted IoUs are the plain ones, for the axis found."""
+    from easyhoi.geometry.masks import mask_iou
+    from easyhoi.perception.shapes.revolution import (
+        profile,
+        profile_mask,
+        reflect_mask,
+        symmetry,
+    )
+
+    m = _bowl()
+    sym = symmetry(m, weight=np.ones(m.shape))
+    c, a = sym["center"], sym["axis"]
+    assert sym["reflection_iou"] == pytest.approx(mask_iou(m, reflect_mask(m, c, a)), abs=1e-12)
+    s, r, n = profile(m, c, a, 64)
+    assert sym["profile_iou"] == pytest.approx(
+        mask_iou(m, profile_mask(m.shape, c, a, n, s, r)), abs=1e-12
+    )
+
+
 def test_inflated_disk_is_a_flattened_sphere():
     """A disk inflates to a spheroid: round across, DEPTH_RATIO x its diameter along the view."""
     m = disk()

@@ -44,6 +44,7 @@ class WorkFrame:
         gray: (h, w) float grey image in [0, 1] or None (edge evidence).
         scale: source pixels per working pixel.
         offset: (2,) source pixel coordinates (u, v) of working pixel coordinate (0, 0).
+        in_photo: (h, w) bool working pixels inside the photo (None: all of them).
     """
 
     mask: np.ndarray
@@ -52,6 +53,7 @@ class WorkFrame:
     gray: np.ndarray | None
     scale: float
     offset: np.ndarray
+    in_photo: np.ndarray | None = None
 
     def to_source(self, uv: np.ndarray) -> np.ndarray:
         """(..., 2) working pixel coordinates -> source pixel coordinates."""
@@ -101,12 +103,14 @@ def work_frame(
     weight[m & ~vis] = COMPLETION_WEIGHT
     if occluder is not None:
         weight[(rs(occluder) >= 0.5) & ~m] = 0.0
-    weight[rs(np.ones(mask.shape, bool)) < 0.5] = 0.0  # beyond the photo's edge
+    in_photo = rs(np.ones(mask.shape, bool)) >= 0.5
+    weight[~in_photo] = 0.0  # beyond the photo's edge
     gray = None
     if image is not None:
         g = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY).astype(np.float32)
         gray = _resample(g / 255.0, box, (side, side)).astype(np.float64)
-    return WorkFrame(m, vis, weight, gray, float(scale), np.array([box[0], box[1]], float))
+    offset = np.array([box[0], box[1]], float)
+    return WorkFrame(m, vis, weight, gray, float(scale), offset, in_photo)
 
 
 def work_resample(values: np.ndarray, wf: WorkFrame, source_mask: np.ndarray) -> np.ndarray:
