@@ -188,6 +188,10 @@ def test_object_shape_section_says_where_the_thickness_came_from():
     # no grip cue: the thickness is said to be the family's assumption
     meta["object_shape"].update(depth_cue_from=None, flat_by_grip=False)
     assert "not measured" in report_mod._shape_html(meta)
+    # the chosen family among several, and how to fit the one the user knows
+    assert "the best of 3 families fitted" in section and "--object-shape NAME" in section
+    one = {"object_shape": {"shape": "cuboid", "scores": {"cuboid": scores["cuboid"]}}}
+    assert "chosen: cuboid, the one family fitted (--object-shape)" in report_mod._shape_html(one)
     # an imported mesh records no shape choice: no section
     assert report_mod._shape_html({}) == ""
 

@@ -348,6 +348,7 @@ def _config_from_args(args):
     perception = {
         "hand": args.hand_backend, "segmenter": args.segmenter, "inpainter": args.inpainter,
         "amodal": args.amodal, "object": args.object_backend,
+        "object_shape": getattr(args, "object_shape", None),
     }  # fmt: skip
     for flag, role, name in (("sam_dir", "amodal", "sam"), ("depth_dir", "object", "depth"),
                              ("diffusion_dir", "inpainter", "diffusion"),
@@ -372,6 +373,15 @@ def _config_from_args(args):
             )
         cfg = with_overrides(cfg, {"optim.seed": seed})
     return cfg
+
+
+def _add_object_shape_option(p) -> None:
+    from easyhoi.shape_families import OBJECT_SHAPES
+
+    p.add_argument("--object-shape", default=None, choices=("auto", *OBJECT_SHAPES),
+                   help="the object's shape family when you know its kind (a cup: revolution, "
+                   "a phone: cuboid or slab, a pen: tube); default auto, the best fit of all "
+                   "(perception.object_shape)")  # fmt: skip
 
 
 def _sets_seed(overrides: dict) -> bool:
@@ -632,6 +642,7 @@ def build_parser() -> argparse.ArgumentParser:
                        ("--inpainter", "inpainter"), ("--amodal", "amodal"),
                        ("--object-backend", "object")):  # fmt: skip
         p.add_argument(flag, default=None, help=f"{role} backend (see `easyhoi doctor`)")
+    _add_object_shape_option(p)
     p.add_argument("--sam-dir", help="local SAM model folder (uses the 'sam' amodal backend)")
     p.add_argument("--depth-dir", help="local depth model folder (uses the 'depth' object backend)")
     p.add_argument("--shape-dir", help="local Shap-E image-to-3D pipeline folder (uses the "
@@ -696,6 +707,7 @@ def build_parser() -> argparse.ArgumentParser:
                        ("--inpainter", "inpainter"), ("--amodal", "amodal"),
                        ("--object-backend", "object")):  # fmt: skip
         p.add_argument(flag, default=None, help=f"{role} backend (see `easyhoi doctor`)")
+    _add_object_shape_option(p)
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="config override, e.g. optim.refine.max_iters=50 (repeatable)")  # fmt: skip
     _add_picture_options(p)

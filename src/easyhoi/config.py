@@ -33,6 +33,7 @@ from typing import Any
 
 from easyhoi.device import check_device_name
 from easyhoi.errors import InvalidInputError
+from easyhoi.shape_families import OBJECT_SHAPES
 
 __all__ = [
     "CameraStageConfig",
@@ -445,6 +446,16 @@ class PerceptionConfig:
     """Local folder of a diffusers inpainting pipeline for the "diffusion" inpainter."""
     shape_dir: str | None = None
     """Local folder of a diffusers Shap-E image-to-3D pipeline for the "shap-e" object backend."""
+    object_shape: str = "auto"
+    """Shape family of the "silhouette" object backend: "auto" fits every family and keeps the
+    best; a family name (:data:`OBJECT_SHAPES`) fits that one alone, for a user who knows the
+    object's kind (a cup is a "revolution", a phone a "cuboid" or a "slab")."""
+
+    def __post_init__(self):
+        if self.object_shape not in ("auto", *OBJECT_SHAPES):
+            raise InvalidInputError(
+                f"object_shape must be 'auto' or one of {OBJECT_SHAPES}, got {self.object_shape!r}"
+            )
 
 
 _HAND_MODELS = ("open", "mano")

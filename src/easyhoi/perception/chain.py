@@ -456,6 +456,13 @@ def _backend(pc, role: str, name: str, seed: int = 0, device: str = "cpu"):
         kwargs["seed"] = backend_seed(seed)
     if "device" in params:
         kwargs["device"] = device
+    if role == "object" and pc.object_shape != "auto":
+        if "families" not in params:
+            raise InvalidInputError(
+                f"--object-shape {pc.object_shape} (perception.object_shape) chooses a shape "
+                f"family of the 'silhouette' object backend; the {name!r} backend has none"
+            )
+        kwargs["families"] = (pc.object_shape,)
     fields = _MODEL_DIR_FIELDS.get(name)
     if fields is None:
         return create(role, name, **kwargs)

@@ -159,7 +159,14 @@ def _shape_html(meta: Mapping, sides_cm=None) -> str:
             f"its inscribed width, a box seen face-on {fmt(cuboid.PRIOR_DEPTH_RATIO)} of its "
             "shorter side), a guess; docs/object_shape.md"
         )
-    facts = [f"chosen: {shape.get('shape')}", depth]
+    if len(scores) == 1:
+        how = "the one family fitted (--object-shape)"
+    else:
+        how = (
+            f"the best of {len(scores)} families fitted; when you know the object's kind, "
+            "--object-shape NAME fits that family alone"
+        )
+    facts = [f"chosen: {shape.get('shape')}, {how}", depth]
     if shape.get("tilt_deg"):
         facts.append(f"tilted out of the image by {fmt(shape['tilt_deg'])} degrees (keypoints)")
     if sides_cm is not None:
