@@ -189,6 +189,12 @@ def test_missing_upload_bad_seed_and_bad_preset(tmp_path):
     assert fn.calls == []
     assert handle_request(src, "paper", "7", **kw).ok
     assert fn.calls[0]["seed"] == 7 and fn.calls[0]["config"].name == "paper"
+    assert fn.calls[0]["config"].perception.object_shape == "auto"
+    res = handle_request(src, "fast", 0, object_shape="cup", **kw)
+    assert not res.ok and "Unknown object shape 'cup'" in res.error and "revolution" in res.error
+    assert len(fn.calls) == 1
+    assert handle_request(src, "fast", 0, object_shape="revolution", **kw).ok
+    assert fn.calls[1]["config"].perception.object_shape == "revolution"
 
 
 def test_reconstruction_errors_become_messages(tmp_path):

@@ -105,6 +105,7 @@ def build_app(
     """
     gr = _require_gradio()
     from easyhoi.config import PRESETS
+    from easyhoi.shape_families import OBJECT_SHAPES
 
     if preset not in PRESETS:
         raise InvalidInputError(f"unknown preset {preset!r}; available: {', '.join(PRESETS)}")
@@ -150,7 +151,7 @@ def build_app(
         rgb, text = ap.mask_preview(path, state, get_preset(preset_name), segment_fn)
         return rgb, text
 
-    def on_run(path, preset_name, seed, state, progress=gr.Progress()):  # noqa: B008 - gradio
+    def on_run(path, preset_name, seed, state, shape, progress=gr.Progress()):  # noqa: B008
         def report(desc, frac):
             progress(frac, desc=desc)
 
@@ -161,6 +162,7 @@ def build_app(
         res = handle_request(
             path, preset_name, seed, work_root=work, reconstruct_fn=reconstruct_fn,
             max_upload_mb=max_upload_mb, keep_runs=keep_runs, progress=report, prompts=prompts,
+            object_shape=shape,
         )  # fmt: skip
         if not res.ok:
             return (
@@ -212,6 +214,11 @@ def build_app(
                         value=0, precision=0, minimum=0, maximum=MAX_SEED, label="Seed",
                         elem_id="seed",
                     )  # fmt: skip
+                shape_box = gr.Dropdown(
+                    choices=["auto", *OBJECT_SHAPES], value="auto", elem_id="object_shape",
+                    label="Object shape (auto: the best fit; or the family you know: a cup is a "
+                    "revolution, a phone a cuboid or a slab, a pen a tube)",
+                )  # fmt: skip
                 run = gr.Button("Run", variant="primary", elem_id="run")
                 error = gr.Markdown("", visible=False, elem_id="error")
                 warnings = gr.Markdown("", visible=False, elem_id="warnings")
@@ -245,7 +252,7 @@ def build_app(
         show_mask.click(on_mask, [photo, prompt_state, preset_box], [mask_view, mask_line],
                         concurrency_limit=1, api_name="mask_preview")  # fmt: skip
         run.click(
-            on_run, [photo, preset_box, seed_box, prompt_state],
+            on_run, [photo, preset_box, seed_box, prompt_state, shape_box],
             [overlay, model3d, metrics, downloads, error, warnings],
             concurrency_limit=1, api_name="reconstruct",
         )  # fmt: skip

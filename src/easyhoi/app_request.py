@@ -283,6 +283,7 @@ def handle_request(
     progress: Progress | None = None,
     display_name: str | None = None,
     prompts=None,
+    object_shape: str = "auto",
 ) -> DemoResult:
     """Run one demo request: validate the upload, reconstruct, collect the outputs.
 
@@ -299,13 +300,18 @@ def handle_request(
         display_name (str): Name of the upload as the user knows it (default: the file's name).
         prompts (Prompts or None): Points clicked on the photo (pixels of the upload); checked
             against its size.
+        object_shape (str): The object's shape family ("auto": the best fit; see
+            ``perception.object_shape``).
 
     Returns:
         DemoResult: ``ok`` False with a readable ``error`` for bad input or a failed reconstruction;
             this function does not raise for those.
     """
+    from dataclasses import replace
+
     from easyhoi.config import PRESETS, get_preset
     from easyhoi.io.image import load_image
+    from easyhoi.shape_families import OBJECT_SHAPES
 
     t0 = time.perf_counter()
     if image_path is None or str(image_path) == "":
@@ -332,6 +338,15 @@ def handle_request(
     if not seed_f.is_integer() or not 0 <= seed_f <= MAX_SEED:
         return _fail(f"The seed must be a whole number from 0 to {MAX_SEED}, got '{seed}'.", t0)
     seed_i = int(seed_f)
+    if object_shape not in ("auto", *OBJECT_SHAPES):
+        return _fail(
+            f"Unknown object shape '{object_shape}'; choose auto or one of "
+            f"{', '.join(OBJECT_SHAPES)}.",
+            t0,
+        )
+    config = get_preset(preset)
+    if object_shape != "auto":
+        config = replace(config, perception=replace(config.perception, object_shape=object_shape))
 
     try:
         image = load_image(src)
@@ -364,7 +379,7 @@ def handle_request(
     hide = {str(run): "", str(src): f"'{shown}'", str(local): f"'{shown}'"}
     extra = {} if prompts is None else {"prompts": prompts}
     try:
-        rec = fn(local, out_dir, get_preset(preset), seed=seed_i, progress=on_progress, say=on_say,
+        rec = fn(local, out_dir, config, seed=seed_i, progress=on_progress, say=on_say,
                  **extra)  # fmt: skip
     except Exception as exc:  # noqa: BLE001 - every failure becomes a message on the page
         if isinstance(exc, EasyHOIError):
