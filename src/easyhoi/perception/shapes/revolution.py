@@ -155,8 +155,9 @@ def profile(mask: np.ndarray, c: np.ndarray, a: np.ndarray, n_samples: int, weig
     P = c + s[:, None, None] * a + t[None, :, None] * n  # (S, T, 2) in (u, v)
     coords = np.stack([P[..., 1] - 0.5, P[..., 0] - 0.5])
     vals = ndimage.map_coordinates(mask.astype(np.float64), coords, order=1, mode="constant")
-    r_plus = (vals * (t > 0)).sum(axis=1) * dt
-    r_minus = (vals * (t < 0)).sum(axis=1) * dt
+    on_axis = 0.5 * (t == 0)  # a sample on the axis counts half to each side
+    r_plus = (vals * ((t > 0) + on_axis)).sum(axis=1) * dt
+    r_minus = (vals * ((t < 0) + on_axis)).sum(axis=1) * dt
     r = 0.5 * (r_plus + r_minus)
     if weight is not None:
         H, W = mask.shape
