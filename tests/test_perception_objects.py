@@ -176,10 +176,19 @@ def test_symmetry_axis_of_an_outline_cut_by_the_photo_edge():
 
 def test_symmetry_axis_of_an_outline_hidden_by_the_hand():
     """The same bowl with its lower left hidden by a hand (weight 0 on the hand outside the
-    mask): the axis stays at the bowl's centre and the mirror symmetry of what is seen on both
-    sides is near perfect (weighted as the axis search weighs it), while the evidence the family
-    choice gets, unweighted there, counts the hidden corner against it."""
-    from easyhoi.perception.shapes.revolution import symmetry
+    mask): its principal axes lean by about 15 degrees, while the axis searched near the more
+    upright one (:func:`mirror_axis`) is the bowl's own, about which what is seen on both sides
+    is near perfectly symmetric. The evidence :func:`symmetry` reports still counts the hidden
+    corner (the amodal completion's job), and is never below the principal axis' own."""
+    from easyhoi.perception.shapes.common import principal_axes
+    from easyhoi.perception.shapes.revolution import (
+        mirror_axis,
+        profile,
+        profile_mask,
+        reflection_iou,
+        symmetry,
+        weighted_iou,
+    )
 
     m = _bowl()
     hand = np.zeros(m.shape, bool)
@@ -187,11 +196,59 @@ def test_symmetry_axis_of_an_outline_hidden_by_the_hand():
     seen_mask = m & ~hand
     w = np.ones(m.shape)
     w[hand & ~seen_mask] = 0.0
-    seen = symmetry(seen_mask, weight=w)
-    deg, shift = _column_axis_error(seen)
+    c0, axes = principal_axes(seen_mask)
+    a0 = max(axes, key=lambda v: abs(v[1]))
+    assert np.degrees(np.arccos(abs(a0[1]))) > 10.0
+    rows, cols = np.nonzero(seen_mask)
+    across = np.abs((np.stack([cols + 0.5, rows + 0.5], 1) - c0) @ [-a0[1], a0[0]]).max()
+    refl, c, a = mirror_axis(seen_mask, w, c0, a0, float(across))
+    deg, shift = _column_axis_error({"axis": a, "center": c})
     assert deg < 4.0 and shift < 2.0
-    # the evidence still counts the corner the hand hides (the amodal completion's job)
-    assert seen["reflection_iou"] < 0.9
+    assert refl > 0.97
+    sym = symmetry(seen_mask, weight=w)
+    ones = np.ones(m.shape)
+    s, r, n = profile(seen_mask, c0, a0, 64)
+    plain = min(
+        reflection_iou(seen_mask, ones, c0, a0),
+        weighted_iou(seen_mask, profile_mask(m.shape, c0, a0, n, s, r), ones),
+    )
+    assert sym["score"] >= plain - 1e-12
+    assert sym["reflection_iou"] < 0.9
+
+
+def test_symmetry_evidence_needs_most_of_the_mirror_in_the_photo():
+    """About the bowl's own axis (the column u = 80): cut just past it (half of the bowl beyond
+    the photo), less than MIN_MIRROR_SEEN of the mirror image is in the photo, and the
+    evidence counts every pixel (left out, the part beyond would let the half in the photo
+    pass as symmetric about many axes); with a fifth of one side cut, the photo's edge stays out
+    of the evidence, which is then near perfect."""
+    from easyhoi.perception.shapes.revolution import (
+        MIN_MIRROR_SEEN,
+        _axis_evidence,
+        mirror_seen,
+        profile,
+        reflection_iou,
+    )
+
+    c, a = np.array([80.0, 55.0]), np.array([0.0, 1.0])
+
+    def cut_at(col: int) -> tuple[np.ndarray, np.ndarray]:
+        m, w = _bowl(), np.ones((120, 160))
+        m[:, col:], w[:, col:] = False, 0.0  # beyond the photo's edge
+        return m, w
+
+    half, w = cut_at(85)
+    assert mirror_seen(half, w, c, a) < MIN_MIRROR_SEEN
+    ev = _axis_evidence(half, w, c, a, profile(half, c, a, 64, w))
+    assert ev["reflection_iou"] == pytest.approx(
+        reflection_iou(half, np.ones(w.shape), c, a), abs=1e-12
+    )
+    assert ev["reflection_iou"] < 0.6
+
+    bowl, w = cut_at(110)
+    assert mirror_seen(bowl, w, c, a) >= MIN_MIRROR_SEEN
+    ev = _axis_evidence(bowl, w, c, a, profile(bowl, c, a, 64, w))
+    assert ev["reflection_iou"] > 0.95 > reflection_iou(bowl, np.ones(w.shape), c, a)
 
 
 def test_bowl_cut_by_the_photo_edge_is_revolved_whole():
@@ -207,36 +264,6 @@ def test_bowl_cut_by_the_photo_edge_is_revolved_whole():
         assert width == pytest.approx(100.0, abs=2.0)
         assert depth == pytest.approx(width, rel=0.02)  # round cross-sections
         assert height == pytest.approx(60.0, abs=2.0)
-
-
-def test_symmetry_evidence_needs_most_of_the_mirror_in_the_photo():
-    """The bowl cut just right of its axis (half of it beyond the photo): left out of the
-    evidence, the part beyond would let the half in the photo pass as symmetric about many
-    axes; with less than MIN_MIRROR_SEEN of its mirror image in the photo the evidence counts
-    every pixel. With a fifth of one side cut, the photo's edge stays out of the evidence."""
-    from easyhoi.perception.shapes.revolution import (
-        MIN_MIRROR_SEEN,
-        mirror_seen,
-        reflection_iou,
-        symmetry,
-    )
-
-    def cut_at(col: int) -> tuple[np.ndarray, np.ndarray]:
-        m, w = _bowl(), np.ones((120, 160))
-        m[:, col:], w[:, col:] = False, 0.0  # beyond the photo's edge
-        return m, w
-
-    half, w = cut_at(85)
-    sym = symmetry(half, weight=w, evidence_weight=w)
-    c, a = sym["center"], sym["axis"]
-    assert mirror_seen(half, w, c, a) < MIN_MIRROR_SEEN
-    plain = reflection_iou(half, np.ones(w.shape), c, a)
-    assert sym["reflection_iou"] == pytest.approx(plain, abs=1e-12)
-
-    bowl, w = cut_at(110)
-    sym = symmetry(bowl, weight=w, evidence_weight=w)
-    assert mirror_seen(bowl, w, sym["center"], sym["axis"]) >= MIN_MIRROR_SEEN
-    assert sym["reflection_iou"] > 0.95
 
 
 def test_reflection_iou_matches_the_reflected_masks():

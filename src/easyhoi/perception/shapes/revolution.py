@@ -1,16 +1,18 @@
 """Surface of revolution: bottles, cans, cups, balls seen from the side.
 
 The symmetry axis of a mirror-symmetric outline is near one of its two principal (PCA) axes,
-so both are tried, each searched nearby for the axis about which the pixels seen on both sides
-are most symmetric (:func:`symmetry`, :func:`mirror_axis`): where the hand hides one side or
-the photo's edge cuts it, the principal axes lean towards the side that is seen. The radius
+so both are tried, each also searched nearby for the axis about which the pixels seen on both
+sides are most symmetric (:func:`symmetry`, :func:`mirror_axis`): where the hand hides one side
+or the photo's edge cuts it, the principal axes lean towards the side that is seen. The radius
 ``r(s)`` along the axis is the mean of the mask's extents on the two sides of the axis on the
-line perpendicular to it at ``s`` (integrals of the bilinearly interpolated mask), or the longer
-one where the shorter side ends on a hidden pixel (:func:`profile`), and the profile is revolved
-into rings capped by flat disks. The depth follows from the outline (round cross-sections), so
-the family has a rigid depth. Evidence besides the silhouette IoU: the reflection IoU (the
-outline is mirror-symmetric about the axis, counted over every pixel inside the photo),
-recorded as ``reflection_iou``; the selector uses ``min(reflection IoU, profile IoU)``.
+line perpendicular to it at ``s`` (integrals of the bilinearly interpolated mask), along the
+searched axis the longer one where the shorter side ends on a hidden pixel (:func:`profile`);
+of each principal axis and its searched neighbour the one with the better evidence is kept, and
+the profile is revolved into rings capped by flat disks. The depth follows from the outline
+(round cross-sections), so the family has a rigid depth. Evidence besides the silhouette IoU:
+the reflection IoU (the outline is mirror-symmetric about the axis, counted over every pixel
+inside the photo), recorded as ``reflection_iou``; the selector uses ``min(reflection IoU,
+profile IoU)``.
 
 Tilt. A can, a cup or a bottle tilted out of the image by ``t`` has a shorter outline, and its
 flat end disk of radius ``r_e`` is seen as an ellipse with semi-axes ``r_e`` across the axis and
@@ -237,12 +239,15 @@ def symmetry(
 ) -> dict:
     """Best revolution axis of ``mask``: ``score`` = min(reflection IoU, profile IoU), ...
 
-    The axis is searched around each principal axis for the most mirror-symmetric outline
+    An axis is searched around each principal axis for the most mirror-symmetric outline
     (:func:`mirror_axis`, :func:`reflection_iou`): where the hand or the photo's edge hides one
     side, the mask's centroid and principal axes lean towards the side that is seen, while the
     symmetry axis of what is seen on both sides does not. ``weight`` (the working frame's: 0
-    where the outline is hidden, lower on completed pixels) weighs that search and the
-    profile (:func:`profile`); without it every pixel counts the same.
+    where the outline is hidden, lower on completed pixels) weighs that search and its profile
+    (:func:`profile`); without it every pixel counts the same. The searched axis and the
+    principal axis itself (with the plain half-chord) are scored by the evidence below, and the
+    better one is kept: the amodal completion may have drawn the hidden part so that the
+    principal axis explains the outline better.
 
     The IoUs returned, the family's evidence, are weighted by ``evidence_weight`` instead (the
     photo's edge alone as unknown: 1 inside the photo, 0 beyond; None: every pixel counts),
@@ -250,8 +255,8 @@ def symmetry(
     the hand hides the outline, the amodal completion has drawn it, and how symmetric the
     completed outline is stays evidence: counted as unknown there as well, nearly every held
     outline is symmetric enough that boxes seen face-on come out as cylinders
-    (docs/object_shape.md). Between the axes found near the two principal axes, ties within
-    0.02 (of the weighted fit) go to the major axis (a bottle revolves about its length).
+    (docs/object_shape.md). Between the axes kept near the two principal axes, ties within 0.02
+    (of the evidence) go to the major axis (a bottle revolves about its length).
     """
     w = np.ones(mask.shape) if weight is None else weight
     ev = np.ones(mask.shape) if evidence_weight is None else evidence_weight
@@ -261,17 +266,26 @@ def symmetry(
     best = None
     for a0 in axes:
         n0 = np.array([-a0[1], a0[0]])
-        refl, c, a = mirror_axis(mask, w, c0, a0, float(np.abs(pts @ n0).max()))
-        s, r, n = profile(mask, c, a, n_rings, None if weight is None else w)
-        pm = profile_mask(mask.shape, c, a, n, s, r)
-        fit = min(refl, weighted_iou(mask, pm, w))
-        if best is None or fit > best[0] + 0.02:
-            best = (fit, c, a, s, r, pm)
-    _, c, a, s, r, pm = best
+        _, c, a = mirror_axis(mask, w, c0, a0, float(np.abs(pts @ n0).max()))
+        # the searched axis with the profile that knows the hidden pixels, and the principal
+        # axis with the plain half-chord: whichever the outline as seen supports better
+        cands = [_axis_evidence(mask, ev, c, a, profile(mask, c, a, n_rings, w)),
+                 _axis_evidence(mask, ev, c0, a0, profile(mask, c0, a0, n_rings))]  # fmt: skip
+        cand = max(cands, key=lambda d: d["score"])
+        if best is None or cand["score"] > best["score"] + 0.02:
+            best = cand
+    return best
+
+
+def _axis_evidence(mask, ev, c, a, prof) -> dict:
+    """The evidence of one axis and profile (module docs): reflection and profile IoU weighted
+    by ``ev`` when at least :data:`MIN_MIRROR_SEEN` of the mirror image is known, else plain."""
+    s, r, n = prof
     if mirror_seen(mask, ev, c, a) < MIN_MIRROR_SEEN:
         ev = np.ones(mask.shape)  # too little of the mirror image is in the photo to judge by
-    refl, prof = reflection_iou(mask, ev, c, a), weighted_iou(mask, pm, ev)
-    return dict(score=min(refl, prof), reflection_iou=refl, profile_iou=prof, center=c,
+    pm = profile_mask(mask.shape, c, a, n, s, r)
+    refl, piou = reflection_iou(mask, ev, c, a), weighted_iou(mask, pm, ev)
+    return dict(score=min(refl, piou), reflection_iou=refl, profile_iou=piou, center=c,
                 axis=a, s=s, r=r)  # fmt: skip
 
 
