@@ -180,14 +180,13 @@ def test_symmetry_axis_of_an_outline_hidden_by_the_hand():
     upright one (:func:`mirror_axis`) is the bowl's own, about which what is seen on both sides
     is near perfectly symmetric. The evidence :func:`symmetry` reports still counts the hidden
     corner (the amodal completion's job), and is never below the principal axis' own."""
-    from easyhoi.perception.shapes.common import principal_axes
+    from easyhoi.perception.shapes.common import principal_axes, weighted_iou
     from easyhoi.perception.shapes.revolution import (
         mirror_axis,
         profile,
         profile_mask,
         reflection_iou,
         symmetry,
-        weighted_iou,
     )
 
     m = _bowl()

@@ -174,12 +174,16 @@ def _same_size_groups(polys) -> list[list[np.ndarray]]:
     return groups
 
 
+def weighted_iou(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> float:
+    """IoU of two bool masks with per-pixel weights ``w`` (0 when the union weighs nothing)."""
+    inter = (w * (a & b)).sum()
+    union = (w * (a | b)).sum()
+    return float(inter / union) if union > 0 else 0.0
+
+
 def fit_iou(sil: np.ndarray, wf: WorkFrame) -> float:
     """Weighted IoU of a predicted silhouette with the amodal mask (module docs)."""
-    w = wf.weight
-    inter = (w * (sil & wf.mask)).sum()
-    union = (w * (sil | wf.mask)).sum()
-    return float(inter / union) if union > 0 else 0.0
+    return weighted_iou(sil, wf.mask, wf.weight)
 
 
 def inside_distance(mask: np.ndarray) -> np.ndarray:

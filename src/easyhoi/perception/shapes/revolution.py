@@ -44,6 +44,7 @@ from easyhoi.perception.shapes.common import (
     fit_iou,
     principal_axes,
     rasterize,
+    weighted_iou,
 )
 
 #: Axis tilts out of the image tried (degrees); see module docs.
@@ -102,12 +103,6 @@ def reflect_mask(mask: np.ndarray, c: np.ndarray, a: np.ndarray) -> np.ndarray:
     direction ``a``; pixels whose mirror image lies off the map get 0."""
     rows, cols, ok = _mirror_index(mask.shape, c, a)
     return np.where(ok, mask[rows, cols], 0).astype(mask.dtype)
-
-
-def weighted_iou(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> float:
-    """IoU of two bool masks with per-pixel weights ``w`` (0 when both are empty)."""
-    union = float((w * (a | b)).sum())
-    return float((w * (a & b)).sum()) / union if union > 0 else 0.0
 
 
 def mirror_seen(mask: np.ndarray, weight: np.ndarray, c: np.ndarray, a: np.ndarray) -> float:
