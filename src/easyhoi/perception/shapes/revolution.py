@@ -264,7 +264,7 @@ def symmetry(
         _, c, a = mirror_axis(mask, w, c0, a0, float(np.abs(pts @ n0).max()))
         # the searched axis with the profile that knows the hidden pixels, and the principal
         # axis with the plain half-chord: whichever the outline as seen supports better
-        cands = [_axis_evidence(mask, ev, c, a, profile(mask, c, a, n_rings, w)),
+        cands = [_axis_evidence(mask, ev, c, a, profile(mask, c, a, n_rings, weight)),
                  _axis_evidence(mask, ev, c0, a0, profile(mask, c0, a0, n_rings))]  # fmt: skip
         cand = max(cands, key=lambda d: d["score"])
         if best is None or cand["score"] > best["score"] + 0.02:
