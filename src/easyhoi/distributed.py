@@ -267,8 +267,7 @@ def execute(
     if not isinstance(workers, int) or workers < 1:
         raise InvalidInputError(f"workers must be an integer >= 1, got {workers!r}")
     if mp_context is None:
-        forkserver = "forkserver" in multiprocessing.get_all_start_methods()
-        mp_context = "forkserver" if forkserver else "spawn"
+        mp_context = _default_start_method()
     if mp_context not in ("spawn", "forkserver"):
         raise InvalidInputError(f"mp_context must be 'spawn' or 'forkserver', got {mp_context!r}")
     tasks = list(tasks)
@@ -298,6 +297,12 @@ def _check_picklable(worker) -> None:
 # ----------------------------------------------------------------------------------------------
 # local process pool
 # ----------------------------------------------------------------------------------------------
+
+
+def _default_start_method() -> str:
+    """The local pool's start method when none is given: the fork server where the platform
+    has it, else spawn."""
+    return "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
 
 
 def _context(mp_context: str, preload: tuple[str, ...] = ()):
@@ -330,7 +335,7 @@ def start_fork_server(preload: tuple[str, ...] = ()) -> bool:
     of after it: the first photo starts about a second earlier. The pool created later finds
     the server running with the same preload.
     """
-    if "forkserver" not in multiprocessing.get_all_start_methods():
+    if _default_start_method() != "forkserver":
         return False
     from multiprocessing import forkserver
 
