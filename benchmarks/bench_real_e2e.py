@@ -18,6 +18,8 @@ reference masks, which the pipeline never sees:
   moved onto the hand; ``perception.feedback``), or stopped with a named error;
 * ``input_object_iou``: perception's visible object mask against the reference, so that a
   usable mask that the optimizer loses (``mask_lost``: input IoU >= 0.5, result < 0.5) shows.
+* ``object_hidden``: the share of perception's visible object mask that the rendered hand lies
+  over (the photo shows those pixels as object, so nothing should be in front of them).
 
 The summary, per mode, over the photos with a held object: the share usable, the share of the
 unusable ones that were warned about, the mean IoUs, and the masks lost by the optimizer.
@@ -98,6 +100,7 @@ def run_one(ref_file: str, mode: str, data: str, overrides: dict | None = None) 
         object_iou=iou(rendered["object_visible"], ref["object"]),
         input_hand_iou=max((iou(rec.inp.hand_mask, m) for m in ref["hand"]), default=0.0),
         input_object_iou=iou(rec.inp.object_mask, ref["object"]),
+        object_hidden=_hidden_share(rendered["hand_visible"], rec.inp.object_mask),
         in_contact=bool(plaus.get("in_contact")),
         contact_cm=plaus.get("contact_distance_cm"),
         intersection_cm3=plaus.get("intersection_volume_cm3"),
@@ -111,6 +114,13 @@ def run_one(ref_file: str, mode: str, data: str, overrides: dict | None = None) 
         row["hand_iou"] >= USABLE_IOU and row["object_iou"] >= USABLE_IOU and row["in_contact"]
     )
     return row
+
+
+def _hidden_share(hand_visible: np.ndarray, object_mask: np.ndarray) -> float:
+    """Share of the input visible object mask that the result's hand covers in the render: the
+    photo shows those pixels as object, so nothing should lie in front of them."""
+    m = np.asarray(object_mask, bool)
+    return round(float((np.asarray(hand_visible, bool) & m).sum() / max(int(m.sum()), 1)), 3)
 
 
 def summary(rows: list[dict]) -> dict:
@@ -140,6 +150,7 @@ def summary(rows: list[dict]) -> dict:
         "mean_hand_iou": mean("hand_iou", done),
         "mean_object_iou": mean("object_iou", done),
         "mean_input_object_iou": mean("input_object_iou", done),
+        "mean_object_hidden": mean("object_hidden", done),
         "mask_lost": sum(
             r.get("input_object_iou", 0) >= USABLE_IOU and r.get("object_iou", 0) < USABLE_IOU
             for r in done
@@ -154,7 +165,8 @@ def _line(r: dict) -> str:
     return (
         f"{r['photo'][:44]:44s} {r['mode']:5s} usable={int(r['usable'])} "
         f"hand={r['hand_iou']:.2f} obj={r['object_iou']:.2f} (mask {r['input_object_iou']:.2f}) "
-        f"contact={int(r['in_contact'])} warned={int(r['warned'])} {r['cpu_seconds']:.1f}s"
+        f"hidden={r['object_hidden']:.2f} contact={int(r['in_contact'])} "
+        f"warned={int(r['warned'])} {r['cpu_seconds']:.1f}s"
     )
 
 

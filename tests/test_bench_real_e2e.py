@@ -48,6 +48,20 @@ def test_summary_rates_over_the_photos_with_a_held_object():
     assert s["median_cpu_seconds"] == pytest.approx(5.0)
 
 
+def test_hidden_share_counts_the_object_mask_under_the_rendered_hand():
+    import numpy as np
+
+    be = _script()
+    obj = np.zeros((10, 10), bool)
+    obj[2:6, 2:7] = True  # 20 pixels
+    hand = np.zeros((10, 10), bool)
+    hand[4:9, 5:9] = True  # over 2 rows x 2 columns of the object, and beyond it
+    assert be._hidden_share(hand, obj) == pytest.approx(4 / 20)
+    assert be._hidden_share(hand, np.zeros((10, 10), bool)) == 0.0
+    rows = [dict(_row(True, False), object_hidden=h) for h in (0.0, 0.3)]
+    assert be.summary(rows)["mean_object_hidden"] == pytest.approx(0.15)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "stem",
