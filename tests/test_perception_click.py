@@ -67,6 +67,47 @@ def test_one_click_is_deterministic():
     assert iou(a, obj) > 0.8
 
 
+def _body_with_a_stick(stick_colour):
+    """A red disk clear of the hand and, unless ``stick_colour`` is None, a stick of another
+    colour along the shortest way from it to the hand (a lollipop held by its stick)."""
+    from scipy import ndimage
+
+    from easyhoi.perception.skin import draw_skeleton
+
+    hand = draw_skeleton((S, S), KP, 13, palm=True)
+    body = (XX - 195) ** 2 + (YY - 50) ** 2 < 22**2
+    d, idx = ndimage.distance_transform_edt(~hand, return_indices=True)
+    a = np.unravel_index(np.argmin(np.where(body, d, np.inf)), d.shape)
+    stick = np.zeros((S, S), np.uint8)
+    cv2.line(stick, (int(a[1]), int(a[0])), (int(idx[1][a]), int(idx[0][a])), 1, 5)
+    stick = stick.astype(bool) & ~body & ~hand
+    img = canvas()
+    img[body] = (200, 40, 40)
+    if stick_colour is not None:
+        img[stick] = stick_colour
+    img, drawn = finish(img)
+    assert np.array_equal(drawn, hand) and d[a] > 40  # a gap of most of a palm length
+    return img, hand, body, stick
+
+
+def test_a_clicked_part_clear_of_the_hand_is_joined_to_it_by_what_lies_between():
+    """The click grows the red body, which the hand does not touch; the stick between them,
+    of a colour of its own, is joined (the held object touches the hand). Without a stick the
+    background between them is not."""
+    for colour in [(30, 30, 30), (250, 250, 250), (40, 160, 60)]:
+        img, hand, body, stick = _body_with_a_stick(colour)
+        m = click(img, 195.0, 50.0)
+        near = cv2.dilate(hand.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        assert (m & near).any(), colour
+        assert (m & stick).sum() > 0.85 * stick.sum(), colour
+        assert iou(m, body | stick) > 0.85, colour
+    img, hand, body, _ = _body_with_a_stick(None)
+    m = click(img, 195.0, 50.0)
+    near = cv2.dilate(hand.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    assert not (m & near).any()
+    assert iou(m, body) > 0.9
+
+
 def test_pieces_on_both_sides_of_the_fingers_are_joined():
     from easyhoi.perception.click import join_across_hand
 

@@ -18,7 +18,8 @@ different objects, give candidates that contain it:
 Every candidate is scored by cues that hold for objects in photos in general
 (:func:`click_score`). The best one gets back what the hand mask took of it
 (:func:`take_back_from_hand`) and its outline is settled by one GrabCut seeded by it
-(:func:`settle`).
+(:func:`settle`); a mask that stops short of the hand is joined to it by what lies between
+them (:func:`bridge_to_hand`: a held object touches the hand that holds it).
 """
 
 from __future__ import annotations
@@ -81,6 +82,9 @@ CLICK_WEIGHTS = {
 FRAME_CAP = 4.0
 #: Object area range, x hand area, outside which the size penalty grows with the log-ratio.
 CLICK_AREA = (0.02, 4.0)
+#: Largest share of what :func:`bridge_to_hand` adds that may lie outside the hull of the mask
+#: and the hand's nearest pixel.
+BRIDGE_OUTSIDE = 0.1
 #: Candidates overlapping less than this (IoU) are other regions for :func:`click_margin`.
 OTHER_REGION_IOU = 0.5
 
@@ -466,9 +470,70 @@ def click_object(
     best = max(range(len(scored)), key=lambda i: scored[i][0])
     margin = click_margin(scored, best)
     obj = finish_candidate(img, scene, scored[best][2], p, iterations, seed)
+    obj = bridge_to_hand(img, scene, obj, p, iterations, seed, inside)
     for k in range(1, len(pts)):  # further clicks: the object grown to take each in
         obj = add_click(img, scene, obj, pts[: k + 1], iterations, seed, inside)
     return obj, [(s, c) for s, c, _ in scored], margin
+
+
+def bridge_to_hand(
+    img: np.ndarray,
+    scene: ho.Scene,
+    obj: np.ndarray,
+    p: np.ndarray,
+    iterations: int,
+    seed: int,
+    inside: tuple[bool, bool, bool, bool] | None = None,
+) -> np.ndarray:
+    """``obj`` joined to the hand when it stops short of it.
+
+    A held object touches the hand that holds it in the photo: it borders the hand where the
+    fingers grip it, or the hand covers part of it. A clicked mask with a gap between it and
+    the hand misses the part between them (a bottle's neck, a lollipop's stick, a handle),
+    which often has a colour of its own. A further point is placed midway across the narrowest
+    gap and grown as :func:`add_click` grows a user's further point; the result is kept when it
+    is one piece that reaches the hand, what it adds is no larger than the clicked mask, and
+    what it adds lies between the mask and the hand (within the convex hull of the mask and the
+    hand's nearest pixel: a neck or a stick, not the surface the object lies on, which runs out
+    beside the gap).
+    """
+    if not obj.any() or not scene.hand.any():
+        return obj
+    near = cv2.dilate(scene.hand.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    if (obj & near).any():
+        return obj
+    dist, idx = _nearest(scene.hand)
+    d = np.where(obj, dist, np.inf)
+    a = np.unravel_index(int(np.argmin(d)), d.shape)
+    b = (idx[0][a], idx[1][a])
+    q = np.array([(a[1] + b[1]) / 2.0, (a[0] + b[0]) / 2.0])
+    qi = (int(round(q[1])), int(round(q[0])))
+    if scene.hand[qi] or scene.other_hands[qi]:
+        return obj
+    u = add_click(img, scene, obj, np.stack([p, q]), iterations, seed, inside)
+    added = u & ~obj
+    if not (u & near).any() or int(added.sum()) > int(obj.sum()):
+        return obj
+    if cv2.connectedComponents(u.astype(np.uint8), connectivity=8)[0] != 2:
+        return obj
+    # what joins the two lies between them: within the hull of the mask and the hand's
+    # nearest pixel (a stick, a neck), not beside the gap (a surface the object lies on)
+    corner = np.array([[b[1], b[0]]])
+    hull_pts = np.concatenate([np.argwhere(obj)[:, ::-1], corner]).astype(np.int32)
+    hull = np.zeros(obj.shape, np.uint8)
+    cv2.fillConvexPoly(hull, cv2.convexHull(hull_pts), 1)
+    hull = cv2.dilate(hull, np.ones((5, 5), np.uint8)) > 0
+    if int((added & ~hull).sum()) > BRIDGE_OUTSIDE * int(added.sum()):
+        return obj
+    return u
+
+
+def _nearest(mask: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """Distance of every pixel to ``mask`` and the (row, col) of the nearest mask pixel."""
+    from scipy import ndimage
+
+    dist, idx = ndimage.distance_transform_edt(~mask, return_indices=True)
+    return dist, (idx[0], idx[1])
 
 
 def click_margin(scored: list[tuple[float, dict, np.ndarray]], best: int) -> float | None:
