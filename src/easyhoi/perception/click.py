@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from easyhoi.geometry.masks import mask_iou
 from easyhoi.perception import held_object as ho
@@ -502,7 +503,7 @@ def bridge_to_hand(
     near = cv2.dilate(scene.hand.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     if (obj & near).any():
         return obj
-    dist, idx = _nearest(scene.hand)
+    dist, idx = ndimage.distance_transform_edt(~scene.hand, return_indices=True)
     d = np.where(obj, dist, np.inf)
     a = np.unravel_index(int(np.argmin(d)), d.shape)
     b = (idx[0][a], idx[1][a])
@@ -526,14 +527,6 @@ def bridge_to_hand(
     if int((added & ~hull).sum()) > BRIDGE_OUTSIDE * int(added.sum()):
         return obj
     return u
-
-
-def _nearest(mask: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-    """Distance of every pixel to ``mask`` and the (row, col) of the nearest mask pixel."""
-    from scipy import ndimage
-
-    dist, idx = ndimage.distance_transform_edt(~mask, return_indices=True)
-    return dist, (idx[0], idx[1])
 
 
 def click_margin(scored: list[tuple[float, dict, np.ndarray]], best: int) -> float | None:
