@@ -268,6 +268,7 @@ def test_hands_without_a_held_object_exit_6(tmp_path, capsys, shared_data, monke
     photo = shared_data / "images" / "hamer-no-object.jpg"
     rc, err = run(capsys, photo, "--out", tmp_path / "out")
     assert_refused(rc, err, 6, "NoObjectError", "hand(s) but no held object")
+    assert "--object-point X,Y" in err  # says what to do
     assert_nothing_written(tmp_path / "out")
 
 

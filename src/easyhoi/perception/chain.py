@@ -189,7 +189,10 @@ def perceive(
                     f"the hand nearest the {report.hand_choice} (hand {i}, {hands[i].side}) "
                     "holds no object"
                 )
-            raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
+            raise NoObjectError(
+                f"found {len(hands)} hand(s) but no held object: if a hand holds one, re-run "
+                "with --object-point X,Y inside the object (or --object-box X0,Y0,X1,Y1)"
+            )
         if pv.hand_mask is not None or pv.object_mask is not None:
             hm = seg.hand_mask if pv.hand_mask is None else pv.hand_mask
             om = seg.object_mask if pv.object_mask is None else pv.object_mask
