@@ -241,7 +241,11 @@ def test_push_out_takes_a_sunken_hand_out_without_bending_it():
     move, note = push_out(scene, sunk, m, cfg)
     with torch.no_grad():
         d1 = scene.sdf(sc.model(sunk).vertices[0] / m + move, cfg.sdf_resolution)
-    assert float(d1.min()) > -0.01
+    # out but for the finger pads and the palm, which may stay up to pad_tolerance_m inside
+    pads = torch.zeros(d1.shape[-1], dtype=torch.bool)
+    pads[scene.regions.contact_vertices] = True
+    assert float(d1[~pads].min()) > -0.01
+    assert float(d1[pads].min()) > -cfg.pad_tolerance_m / (m * float(scene.extent)) - 0.01
     assert note["steps"] >= 1 and 0.03 < note["distance"] <= 0.2 + 1e-9
     # nothing to do for a hand outside the object
     move, note = push_out(scene, p, m, cfg)

@@ -197,8 +197,10 @@ def test_translation_steps_are_in_object_sizes(box_scene, hand, lr):
     # weight 2000 the box scene's hand moved less than 0.5 lr per step at lr 1e-3)
     p0, _ = _pushed(sc, scene, hand, 0.01)
     m, cam = sc.gt_metric_scale, sc.gt_camera.to(torch.float32)
+    # (every penetrating vertex counts, the pads too, so that the penetration term drives them)
     rc = replace(cfg.refine, lr_transl=lr, lr_global=1e-6, optimise_pose=False, patience=0,
-                 max_iters=6, resolution_schedule=(1.0,), push_out_steps=0)  # fmt: skip
+                 max_iters=6, resolution_schedule=(1.0,), push_out_steps=0,
+                 pad_tolerance_m=0.0)  # fmt: skip
     p, res = fit_refine(scene, p0, m, cam, rc, cfg)
     unit = scene.extent * m  # metres per object size
     moved = (p.transl - p0.transl).abs().max().item()
@@ -245,3 +247,48 @@ def test_push_out_is_kept_only_when_the_stage_loss_falls(box_scene, hand):
         else:
             assert m1 == m and torch.equal(tr, p0.transl)
     assert kept == {cfg.refine.penetration_weight: True, 0.0: False}
+
+
+def test_pad_tolerance_against_a_vertex_by_vertex_reference(box_scene, hand):
+    """pad_tolerance_m: the contact-zone vertices count as penetrating only deeper than the
+    tolerance (metres), the others from penetration_threshold; the term's gradient is -1/V at
+    the vertices that count and 0 elsewhere."""
+    sc, scene, cfg = box_scene
+    m = sc.gt_metric_scale
+    p0, _ = _pushed(sc, scene, hand, 0.004)  # 4 mm into the object
+    only = dict(hand_mask_weight=0.0, reg_weight=0.0, keypoint_weight=0.0, prior_weight=0.0)
+    base = replace(cfg.refine, **only, penetration_weight=1.0, contact_weight=1.0,
+                   contact_max_distance=0.05, opposition_max_distance=None,
+                   pad_tolerance_m=0.0)  # fmt: skip
+    with torch.no_grad():
+        d = scene.sdf(hand(p0).vertices[0] / m, base.sdf_resolution).double()
+    unit = m * float(scene.extent)  # metres per normalised object unit
+    pads = set(scene.regions.contact_vertices.tolist())
+    tol = 0.002
+    # naive references, vertex by vertex
+    thr = [(min(-tol / unit, base.penetration_threshold) if i in pads
+            else base.penetration_threshold) for i in range(len(d))]  # fmt: skip
+    pen = sum(-float(v) for v, t in zip(d, thr, strict=True) if float(v) < t) / len(d)
+    cv = scene.regions.contact_vertices.tolist()
+    pads_in = sum(float(d[i]) < base.penetration_threshold for i in cv)
+    pads_deep = sum(float(d[i]) < -tol / unit for i in cv)
+    assert pads_deep < pads_in  # some pads lie within the tolerance: the cases differ
+    rc = replace(base, pad_tolerance_m=tol)
+    got = refine_terms(scene, p0, m, p0.pose, rc, None, None)
+    assert float(got["penetration"]) == pytest.approx(pen, rel=1e-4)
+    # off (0): the plain threshold for every vertex
+    plain = refine_terms(scene, p0, m, p0.pose, base, None, None)
+    ref = sum(-float(v) for v in d if float(v) < base.penetration_threshold) / len(d)
+    assert float(plain["penetration"]) == pytest.approx(ref, rel=1e-4)
+    assert float(plain["penetration"]) > float(got["penetration"])
+    # the gradient: -1/V at every vertex that counts, 0 at the pads within the tolerance
+    from easyhoi.optim.losses import penetration_loss
+    from easyhoi.optim.refine import penetration_thresholds
+
+    dd = d.clone().requires_grad_(True)
+    penetration_loss(dd, penetration_thresholds(scene, rc, m, dd)).backward()
+    want = torch.tensor([-1.0 / len(d) if float(v) < t else 0.0
+                         for v, t in zip(d, thr, strict=True)],
+                        dtype=torch.float64)  # fmt: skip
+    assert torch.allclose(dd.grad, want)
+    assert penetration_thresholds(scene, base, m, dd) == base.penetration_threshold

@@ -227,7 +227,8 @@ def penetration_loss(
     Args:
         sdf_values ((B, V) or (V,) float tensor): Object signed distance at every hand vertex
             (inside < 0).
-        threshold (float): Vertices with ``d < threshold`` count (should be <= 0).
+        threshold (float or (V,) tensor): Vertices with ``d < threshold`` count (should be
+            <= 0); a tensor gives each vertex its own.
         reduction ({"mean", "sum", "none"}): Combines the per-hand values (B,).
 
     Returns:

@@ -11,7 +11,8 @@ loss below is lower after it). Object-frame vertices are
 ``model(params).vertices / m``. The loss is::
 
     L = hand_mask_weight   * soft_iou(visible hand, M_h)
-      + penetration_weight * (1/V) sum_v max(0, -d(v))      (d below penetration_threshold)
+      + penetration_weight * (1/V) sum_v max(0, -d(v))      (d below penetration_threshold;
+                             the contact zones' below pad_tolerance_m in metres if deeper)
       + contact_weight     * (K / |C|) sum_{v in C} max(0, d(v))   (C: contact zones)
                              (only d(v) < contact_max_distance, or opposition_max_distance
                               for the thumb's and index finger's C vertices; see contact_radii)
@@ -122,7 +123,9 @@ def refine_terms(
     if cfg.penetration_weight > 0 or cfg.contact_weight > 0:
         d = scene.sdf(verts, cfg.sdf_resolution)
         if cfg.penetration_weight > 0:
-            terms["penetration"] = penetration_loss(d, cfg.penetration_threshold)
+            terms["penetration"] = penetration_loss(
+                d, penetration_thresholds(scene, cfg, metric_scale, d)
+            )
             total = total + cfg.penetration_weight * terms["penetration"]
         if cfg.contact_weight > 0:
             dc = d[scene.regions.contact_vertices]
@@ -135,6 +138,18 @@ def refine_terms(
         total = total + cfg.reg_weight * terms["reg"]
     terms["total"] = total
     return terms
+
+
+def penetration_thresholds(scene: Scene, cfg: RefineStageConfig, metric_scale: float, d):
+    """Per-vertex SDF below which a hand vertex counts as penetrating (normalised object
+    units, like ``d``): ``cfg.penetration_threshold``, and for the contact-zone vertices the
+    deeper of it and ``cfg.pad_tolerance_m`` in metres; a float when no tolerance is set."""
+    if cfg.pad_tolerance_m <= 0:
+        return cfg.penetration_threshold
+    pad = -cfg.pad_tolerance_m / (float(metric_scale) * float(scene.extent))
+    t = torch.full(d.shape[-1:], cfg.penetration_threshold, dtype=d.dtype, device=d.device)
+    t[scene.regions.contact_vertices.to(d.device)] = min(pad, cfg.penetration_threshold)
+    return t
 
 
 def contact_radii(scene: Scene, cfg: RefineStageConfig):
@@ -208,7 +223,7 @@ def push_out(
     for _ in range(cfg.push_out_steps + 1):
         v = moved(total).detach().requires_grad_(True)
         d = scene.sdf(v, cfg.sdf_resolution)
-        inside = d < cfg.penetration_threshold
+        inside = d < penetration_thresholds(scene, cfg, metric_scale, d)
         sunk = float((-d[inside]).detach().sum())
         if last is not None and sunk >= last[0]:  # the move made it worse: undo it, stop
             total, steps = last[1], steps - 1
