@@ -340,3 +340,20 @@ def test_real_pipeline_through_the_handler(tmp_path, shared_data):
     assert any(d.startswith("optimizing: refine") for d in seen)
     with zipfile.ZipFile(io.BytesIO(res.downloads[0].read_bytes())) as zf:
         assert "hort-can/report.html" in zf.namelist()
+
+
+def test_no_object_error_says_what_to_do_on_the_page_and_on_the_command_line():
+    """The automatic path's NoObjectError names the command line's prompts; the page replaces
+    that hint with its own gesture (a click on the object), and keeps other messages whole."""
+    from easyhoi.app_request import _readable
+    from easyhoi.errors import NO_OBJECT_HINT, NoObjectError
+
+    exc = NoObjectError(f"found 1 hand(s) but no held object{NO_OBJECT_HINT}")
+    assert "--object-point X,Y" in str(exc) and "object_point" in str(exc)
+    page = _readable(exc, {})
+    assert page == (
+        "No held object was found in the photo: found 1 hand(s) but no held object: click "
+        "inside the object in the photo and run again"
+    )
+    other = NoObjectError("the hand nearest the hand point (hand 0, right) holds no object")
+    assert _readable(other, {}).endswith("holds no object")

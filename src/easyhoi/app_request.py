@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from easyhoi.errors import (
+    NO_OBJECT_HINT,
     BackendError,
     EasyHOIError,
     InvalidInputError,
@@ -141,6 +142,8 @@ def _readable(exc: BaseException, replace: dict[str, str]) -> str:
         if old:
             msg = msg.replace(old, new)
     msg = msg.splitlines()[0] if msg else msg
+    if isinstance(exc, NoObjectError) and msg.endswith(NO_OBJECT_HINT):
+        msg = msg[: -len(NO_OBJECT_HINT)] + ": click inside the object in the photo and run again"
     if isinstance(exc, EasyHOIError):
         title = next((t for cls, t in _TITLES.items() if isinstance(exc, cls)), "Error")
         return f"{title}: {msg}"

@@ -20,6 +20,7 @@ __all__ = [
     "InvalidInputError",
     "LowConfidenceError",
     "MissingDependencyError",
+    "NO_OBJECT_HINT",
     "NoHandError",
     "NoObjectError",
     "OptimizationError",
@@ -153,6 +154,14 @@ class NoObjectError(EasyHOIError):
     """A hand was found but no held object."""
 
     exit_code = ExitCode.NO_OBJECT
+
+
+#: What the automatic path's :class:`NoObjectError` suggests (the web demo words it its own
+#: way, ``app_request``): a point inside the object makes the segmenter look there.
+NO_OBJECT_HINT = (
+    ": if a hand holds one, point inside it (--object-point X,Y or --object-box "
+    "X0,Y0,X1,Y1; object_point or object_box rows in a batch's prompts file)"
+)
 
 
 class OptimizationError(EasyHOIError, RuntimeError):

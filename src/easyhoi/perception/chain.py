@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from easyhoi.config import EasyHOIConfig
-from easyhoi.errors import InvalidInputError, NoHandError, NoObjectError
+from easyhoi.errors import NO_OBJECT_HINT, InvalidInputError, NoHandError, NoObjectError
 from easyhoi.hoi import HOIInput
 from easyhoi.perception.base import HandDetection, Segmentation, create
 from easyhoi.perception.confidence import keypoints_confidence
@@ -189,10 +189,7 @@ def perceive(
                     f"the hand nearest the {report.hand_choice} (hand {i}, {hands[i].side}) "
                     "holds no object"
                 )
-            raise NoObjectError(
-                f"found {len(hands)} hand(s) but no held object: if a hand holds one, re-run "
-                "with --object-point X,Y inside the object (or --object-box X0,Y0,X1,Y1)"
-            )
+            raise NoObjectError(f"found {len(hands)} hand(s) but no held object{NO_OBJECT_HINT}")
         if pv.hand_mask is not None or pv.object_mask is not None:
             hm = seg.hand_mask if pv.hand_mask is None else pv.hand_mask
             om = seg.object_mask if pv.object_mask is None else pv.object_mask
