@@ -249,9 +249,7 @@ def segment_for_preview(rgb: np.ndarray, config, prompts: Prompts | None):
         raise NoHandError("no hand found in the photo")
     i, seg, _, _ = segment_hands(rgb, hands, segmenter, prompts, name=pc.segmenter)
     if seg is None:
-        raise NoObjectError(
-            f"found {len(hands)} hand(s) but no held object: click inside the object in the photo"
-        )
+        raise NoObjectError(f"found {len(hands)} hand(s) but no held object")
     facts = {"hands_found": len(hands), "hand_index": i, "side": hands[i].side,
              "confidence": {k: v.to_dict() for k, v in seg.confidence.items()}}  # fmt: skip
     if seg.candidates:
