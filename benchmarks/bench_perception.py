@@ -572,6 +572,11 @@ def main(argv=None) -> int:
         "alone; K > 0: by the name and K), for several users' clicks on the same photos",
     )
     ap.add_argument("--out", type=Path, default=RESULTS / "bench_perception.json")
+    ap.add_argument(
+        "--grabcut-seed", type=int, default=0,
+        help="seed of OpenCV's random generator for GrabCut's colour models (the product's: 0); "
+        "another seed shows how much the rates depend on one draw",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     if args.click_depth is not None and not 0.0 <= args.click_depth <= 1.0:
         ap.error(f"--click-depth must be in [0, 1], got {args.click_depth}")
@@ -591,7 +596,7 @@ def main(argv=None) -> int:
     if not files:
         print(f"no reference files in {args.refs}", file=sys.stderr)
         return 1
-    detector, segmenter = MediaPipeHands(), ClassicalHOISegmenter()
+    detector, segmenter = MediaPipeHands(), ClassicalHOISegmenter(seed=args.grabcut_seed)
     rows, names = [], []
     for f in files:
         half = "tune" if zlib.crc32(f.stem.encode()) % 2 == 0 else "check"

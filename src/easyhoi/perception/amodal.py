@@ -38,6 +38,7 @@ from easyhoi.errors import InvalidInputError, NoObjectError
 from easyhoi.io.image import check_image
 from easyhoi.perception.base import register
 from easyhoi.perception.masks import _components, check_mask
+from easyhoi.perception.skin import grabcut
 
 logger = logging.getLogger(__name__)
 
@@ -263,10 +264,7 @@ class ClassicalAmodalSegmenter:
         for u, v in pts:
             c = (int((u - x0) * s), int((v - y0) * s))
             cv2.circle(init, c, max(1, int(self.point_radius)), int(cv2.GC_FGD), -1)
-        cv2.setRNGSeed(self.seed)
-        bgd, fgd = np.zeros((1, 65)), np.zeros((1, 65))
-        cv2.grabCut(img, init, None, bgd, fgd, self.iterations, cv2.GC_INIT_WITH_MASK)
-        g = (init == cv2.GC_FGD) | (init == cv2.GC_PR_FGD)
+        g = grabcut(img, init, self.iterations, self.seed)
         box_area = max(1, (by1 - by0) * (bx1 - bx0))
         leak = g.sum() > self.leak_fraction * box_area
         anchor = vis_w | hull_w

@@ -116,11 +116,63 @@ def grabcut(img: np.ndarray, init: np.ndarray, iterations: int, seed: int) -> np
         return np.zeros(init.shape, bool)
     if not ((init == cv2.GC_BGD) | (init == cv2.GC_PR_BGD)).any():
         return np.ones(init.shape, bool)
-    cv2.setRNGSeed(seed)
     m = init.copy()
-    bgd, fgd = np.zeros((1, 65)), np.zeros((1, 65))
-    cv2.grabCut(img, m, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
+    fg = (init == cv2.GC_FGD) | (init == cv2.GC_PR_FGD)
+    bgd = gmm_model(img[~fg], seed)
+    fgd = gmm_model(img[fg], seed)
+    if bgd is None or fgd is None:
+        cv2.setRNGSeed(seed)
+        bgd, fgd = np.zeros((1, 65)), np.zeros((1, 65))
+        cv2.grabCut(img, m, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
+    else:
+        cv2.grabCut(img, m, None, bgd, fgd, iterations, cv2.GC_EVAL)
     return (m == cv2.GC_FGD) | (m == cv2.GC_PR_FGD)
+
+
+#: Colour clusters of a GrabCut model (OpenCV's fixed component count).
+GMM_COMPONENTS = 5
+#: k-means starts of :func:`gmm_model`; the most compact clustering is kept.
+GMM_ATTEMPTS = 8
+#: Samples the model is made of at most (a regular subsample).
+GMM_SAMPLES = 2000
+
+
+def gmm_model(samples: np.ndarray, seed: int) -> np.ndarray | None:
+    """GrabCut's (1, 65) colour model of ``samples`` (N, 3): weights, means, covariances of
+    :data:`GMM_COMPONENTS` clusters, from the most compact of :data:`GMM_ATTEMPTS` k-means runs
+    on a regular subsample of at most :data:`GMM_SAMPLES`.
+
+    OpenCV's own initialisation runs k-means once from a random start; which of several similar
+    colour clusterings it lands in then decides where GrabCut draws its outline, so the result
+    depends on the random draw. The most compact of several starts is a far more repeatable
+    clustering. The model only starts GrabCut: its first iteration assigns every pixel to a
+    component and learns the components from all of them, so the subsample suffices. None when
+    there are fewer than two samples per cluster (OpenCV's own start is used then).
+    """
+    x = np.asarray(samples, dtype=np.float32).reshape(-1, 3)
+    k = GMM_COMPONENTS
+    if len(x) < 2 * k:
+        return None
+    x = x[:: max(1, len(x) // GMM_SAMPLES)]
+    cv2.setRNGSeed(seed)
+    crit = (cv2.TERM_CRITERIA_MAX_ITER + cv2.TERM_CRITERIA_EPS, 10, 0.0)
+    _, labels, _ = cv2.kmeans(x, k, None, crit, GMM_ATTEMPTS, cv2.KMEANS_PP_CENTERS)
+    x, lab = x.astype(np.float64), labels.ravel()
+    weights, means, covs = np.zeros(k), np.zeros((k, 3)), np.zeros((k, 3, 3))
+    for j in range(k):
+        xj = x[lab == j]
+        if len(xj) == 0:
+            continue
+        weights[j] = len(xj) / len(x)
+        means[j] = xj.mean(0)
+        d = xj - means[j]
+        cov = d.T @ d / len(xj)
+        if np.linalg.eigvalsh(cov).min() < 1e-3:
+            # a cluster of one or two colours (flat or drawn areas) is singular or nearly so,
+            # which GrabCut refuses: OpenCV's own regularisation, 0.01 on the diagonal
+            cov = cov + 0.01 * np.eye(3)
+        covs[j] = cov
+    return np.concatenate([weights, means.ravel(), covs.ravel()])[None, :]
 
 
 def components(mask: np.ndarray, min_area: int = 1) -> list[np.ndarray]:
