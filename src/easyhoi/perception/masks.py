@@ -169,7 +169,8 @@ class ClassicalHOISegmenter:
             object box is cut by GrabCut on its own (a small box seen in detail).
         refine_top (int): Number of best distinct hypotheses refined by GrabCut and scored again.
         iterations (int): GrabCut iterations.
-        seed (int): Seed of OpenCV's RNG (GrabCut's GMM initialisation uses k-means).
+        seed (int): Seed of OpenCV's RNG for the k-means runs that start GrabCut's colour
+            models (:func:`~easyhoi.perception.skin.gmm_model`).
         auto_scales (tuple of float): Felzenszwalb scales whose hierarchies are pooled on the
             automatic path (fine: small objects stay apart; coarse: textured objects stay whole).
         rank_top (int): Hypotheses (best by the cheap cues) that get the cues needing the mask

@@ -111,7 +111,8 @@ def skin_model(lab: np.ndarray, kp: np.ndarray) -> ColourModel:
 
 
 def grabcut(img: np.ndarray, init: np.ndarray, iterations: int, seed: int) -> np.ndarray:
-    """GrabCut from an initial label map; (h, w) bool foreground. Seeded (k-means init)."""
+    """GrabCut from an initial label map; (h, w) bool foreground. Its colour models start from
+    :func:`gmm_model` of each side of ``init`` (``seed``: the k-means runs' random draw)."""
     if not ((init == cv2.GC_FGD) | (init == cv2.GC_PR_FGD)).any():
         return np.zeros(init.shape, bool)
     if not ((init == cv2.GC_BGD) | (init == cv2.GC_PR_BGD)).any():
