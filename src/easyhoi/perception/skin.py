@@ -113,12 +113,12 @@ def skin_model(lab: np.ndarray, kp: np.ndarray) -> ColourModel:
 def grabcut(img: np.ndarray, init: np.ndarray, iterations: int, seed: int) -> np.ndarray:
     """GrabCut from an initial label map; (h, w) bool foreground. Its colour models start from
     :func:`gmm_model` of each side of ``init`` (``seed``: the k-means runs' random draw)."""
-    if not ((init == cv2.GC_FGD) | (init == cv2.GC_PR_FGD)).any():
+    fg = (init == cv2.GC_FGD) | (init == cv2.GC_PR_FGD)
+    if not fg.any():
         return np.zeros(init.shape, bool)
     if not ((init == cv2.GC_BGD) | (init == cv2.GC_PR_BGD)).any():
         return np.ones(init.shape, bool)
     m = init.copy()
-    fg = (init == cv2.GC_FGD) | (init == cv2.GC_PR_FGD)
     bgd = gmm_model(img[~fg], seed)
     fgd = gmm_model(img[fg], seed)
     if bgd is None or fgd is None:
