@@ -53,12 +53,15 @@ Usage::
     python benchmarks/bench_perception.py --no-point --choices  # and each offered region
     python benchmarks/bench_perception.py --resample 0.9        # the photos at 0.9 x their size
     python benchmarks/bench_perception.py --mirror              # the photos mirrored
+    python benchmarks/bench_perception.py --resample 0.85 --jpeg 90  # and saved as JPEG
 
 ``--resample F`` resamples every photo by ``F`` before anything else (area averaging below 1,
 bicubic above, capped at the photo loader's 1600 px longer side), with the reference masks and
 the object point resampled alike: the same scenes at another pixel size. Working sizes are in
 palm lengths, so the rates should not depend on it; how much they move is how much of a rate
-is the particular pixels of these photos rather than what they show. ``--mirror`` flips every
+is the particular pixels of these photos rather than what they show. ``--jpeg Q`` saves every
+photo (after any resampling) as a JPEG of quality ``Q`` and reads it back: compression noise no
+one sees, which moves a rate as much as resampling does. ``--mirror`` flips every
 photo and its reference left to right (after any resampling): the same pixel values, a left
 hand for a right one.
 
@@ -134,6 +137,17 @@ def resample(rgb: np.ndarray, factor: float, max_side: int = 1600) -> np.ndarray
         return rgb
     size = (max(8, round(w * f)), max(8, round(h * f)))
     return cv2.resize(rgb, size, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_CUBIC)
+
+
+def reencode(rgb: np.ndarray, quality: int) -> np.ndarray:
+    """``rgb`` saved as a JPEG of ``quality`` and read back: the same scene through other pixels
+    (compression noise no one sees), as photos reach users after another save."""
+    ok, buf = cv2.imencode(
+        ".jpg", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)]
+    )
+    if not ok:
+        raise RuntimeError("JPEG encoding failed")
+    return np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
 
 
 def mirror(rgb: np.ndarray, ref: dict) -> tuple[np.ndarray, dict]:
@@ -529,6 +543,14 @@ def main(argv=None) -> int:
         help="resample every photo by this factor first (the same scenes at another size)",
     )
     ap.add_argument(
+        "--jpeg",
+        type=int,
+        default=None,
+        metavar="Q",
+        help="save every photo (after --resample) as a JPEG of quality Q and read it back first "
+        "(the same scenes through other pixels)",
+    )
+    ap.add_argument(
         "--mirror",
         action="store_true",
         help="mirror every photo left to right first (a left hand becomes a right one; the "
@@ -607,6 +629,8 @@ def main(argv=None) -> int:
         if args.only and args.only not in name:
             continue
         rgb = resample(load_image(args.data / ref["image"]).rgb, args.resample)
+        if args.jpeg is not None:
+            rgb = reencode(rgb, args.jpeg)
         ref = fit_to(ref, rgb.shape[:2])
         if args.mirror:
             rgb, ref = mirror(rgb, ref)

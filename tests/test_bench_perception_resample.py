@@ -1,6 +1,6 @@
-"""``bench_perception.py``'s photo transforms (``--resample``, ``--mirror``, ``--rotate``,
-``--crop``) and drawn clicks: the photo changed as the loader or a dataset would change it, with
-the reference (masks and object point) following it."""
+"""``bench_perception.py``'s photo transforms (``--resample``, ``--jpeg``, ``--mirror``,
+``--rotate``, ``--crop``) and drawn clicks: the photo changed as the loader or a dataset would
+change it, with the reference (masks and object point) following it."""
 
 from __future__ import annotations
 
@@ -33,6 +33,24 @@ def test_reference_follows_the_resampled_photo():
     assert small["object"].shape == (150, 250)
     assert small["point"] == (125.0, 75.0)
     assert small["object"][75, 125] and small["object"].sum() == 50 * 50
+
+
+def test_jpeg_reencoding_keeps_the_scene_and_changes_the_pixels():
+    bench = load_script("benchmarks/bench_perception.py")
+    rng = np.random.default_rng(3)
+    rgb = np.zeros((120, 160, 3), np.uint8)
+    rgb[:, :80] = (200, 40, 30)  # a red half and a blue half, with a little noise
+    rgb[:, 80:] = (20, 60, 210)
+    rgb = np.clip(rgb + rng.normal(0, 4, rgb.shape), 0, 255).astype(np.uint8)
+    out = bench.reencode(rgb, 90)
+    assert out.shape == rgb.shape and out.dtype == np.uint8
+    # the channel order is kept (red stays red), the colours stay within a few levels...
+    assert out[60, 20, 0] > 150 and out[60, 20, 2] < 80 and out[60, 140, 2] > 150
+    diff = np.abs(out.astype(int) - rgb.astype(int))
+    assert diff.mean() < 4.0
+    # ...but the pixels differ, more at a lower quality
+    assert (diff > 0).mean() > 0.3
+    assert np.abs(bench.reencode(rgb, 30).astype(int) - rgb.astype(int)).mean() > diff.mean()
 
 
 def test_mirror_flips_the_photo_and_its_reference_together():
