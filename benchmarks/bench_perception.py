@@ -600,6 +600,8 @@ def main(argv=None) -> int:
         "another seed shows how much the rates depend on one draw",
     )  # fmt: skip
     args = ap.parse_args(argv)
+    if args.jpeg is not None and not 1 <= args.jpeg <= 100:
+        ap.error(f"--jpeg takes a quality from 1 to 100, got {args.jpeg}")
     if args.click_depth is not None and not 0.0 <= args.click_depth <= 1.0:
         ap.error(f"--click-depth must be in [0, 1], got {args.click_depth}")
     if args.click_draw < 0 or (args.click_draw and args.click_depth is None):
