@@ -51,6 +51,7 @@ Usage::
     python benchmarks/bench_perception.py --only mow-           # photos whose name has mow-
     python benchmarks/bench_perception.py --click-only          # only the one-point runs
     python benchmarks/bench_perception.py --no-point --choices  # and each offered region
+    python benchmarks/bench_perception.py --click-only --choices  # each of the point's regions
     python benchmarks/bench_perception.py --resample 0.9        # the photos at 0.9 x their size
     python benchmarks/bench_perception.py --mirror              # the photos mirrored
     python benchmarks/bench_perception.py --resample 0.85 --jpeg 90  # and saved as JPEG
@@ -76,6 +77,7 @@ import os
 import sys
 import time
 import zlib
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -361,8 +363,10 @@ def click_ceiling(rgb, hands, segmenter, prompts, ref_obj) -> float | None:
     return best
 
 
-def run_click(rgb, ref, detector, segmenter) -> dict:
-    """The one-point run alone (``--click-only``): object IoU and seconds of the click."""
+def run_click(rgb, ref, detector, segmenter, choices: bool = False) -> dict:
+    """The one-point run alone (``--click-only``): object IoU and seconds of the click; with
+    ``choices``, also the IoU of each of the point's regions picked in turn (``--object-choice
+    K`` with the point, as a user looking at ``masks.png`` would pick)."""
     from easyhoi.perception.chain import segment_hands
     from easyhoi.perception.prompts import Prompts
 
@@ -379,6 +383,12 @@ def run_click(rgb, ref, detector, segmenter) -> dict:
         conf = sp.confidence.get("object") if sp is not None else None
         row["low_point"] = bool(conf is None or conf.low)
         row["ceiling_point"] = click_ceiling(rgb, hands, segmenter, p, ref["object"])
+        if choices and sp is not None:
+            row["iou_point_choices"] = [row["iou_point"]] + [
+                iou(segment_hands(rgb, hands, segmenter, prompts=replace(p, object_choice=k))[1]
+                    .object_mask, ref["object"])
+                for k in range(2, len(sp.candidates) + 1)
+            ]  # fmt: skip
         row["iou_box"], row["low_box"] = box_run(rgb, hands, segmenter, ref["object"])
         sys.path.insert(0, str(ROOT))
         from tests.perception_refs import background_point, second_point
@@ -424,6 +434,14 @@ def click_summary(rows: list[dict]) -> dict:
         )
         if pts
         else 0.0,
+        # the best of the point's first K regions (--choices): a user picking from masks.png
+        **{
+            f"point_best_of_{k}_ge_0.5": float(
+                np.mean([max(r.get("iou_point_choices", [0.0])[:k]) >= 0.5 for r in pts])
+            )
+            for k in range(2, 5)
+            if pts and any("iou_point_choices" in r for r in pts)
+        },
         "point2_iou_ge_0.5": float(np.mean([r.get("iou_point2", 0.0) >= 0.5 for r in pts]))
         if pts
         else 0.0,
@@ -575,7 +593,8 @@ def main(argv=None) -> int:
         "--choices",
         action="store_true",
         help="also pick each object region the automatic path offers (--object-choice K) and "
-        "report the best (best_choice_iou_ge_0.5)",
+        "report the best (best_choice_iou_ge_0.5); with --click-only, each of the point's "
+        "regions (point_best_of_K_ge_0.5)",
     )
     ap.add_argument(
         "--click-depth",
@@ -646,7 +665,7 @@ def main(argv=None) -> int:
             key = name if args.click_draw == 0 else f"{name}#{args.click_draw}"
             ref["point"] = drawn_point(ref["object"], args.click_depth, key)
         if args.click_only:
-            row = run_click(rgb, ref, detector, segmenter)
+            row = run_click(rgb, ref, detector, segmenter, args.choices)
             row["half"] = half
             rows.append(row)
             names.append(name)
@@ -656,6 +675,7 @@ def main(argv=None) -> int:
                 f"fix={row.get('iou_fix', float('nan')):.2f}{row.get('fix', '')[:2]} "
                 f"cands={row.get('ceiling_point') or float('nan'):.2f} "
                 f"box={row.get('iou_box', float('nan')):.2f} "
+                f"choices={[round(v, 2) for v in row.get('iou_point_choices', [])]} "
                 f"{row.get('seconds_point', 0.0):.2f}s "
                 f"cpu {row.get('cpu_seconds_point', 0.0):.2f}s",
                 file=sys.stderr,

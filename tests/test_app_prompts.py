@@ -104,7 +104,7 @@ def test_two_box_corners_make_the_object_box(tmp_path):
     # the box replaces the automatic path: a region chosen from it does not count
     chosen = ap.set_choice(s2, "3")
     assert ap.state_prompts(chosen).object_choice is None
-    assert "counts only without object points or box" in ap.prompt_text(chosen)
+    assert "counts only without a box" in ap.prompt_text(chosen)
     # drawn: a green rectangle on the box's outline, a green square at a pending corner
     drawn = ap.draw_prompts(rgb, s2)
     assert tuple(drawn[50, 200]) == (40, 220, 90) and tuple(drawn[125, 100]) == (40, 220, 90)

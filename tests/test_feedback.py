@@ -75,7 +75,8 @@ def test_contact_line_only_for_a_hand_apart_from_its_object():
     )
     assert contact_line(apart, "batch", prompted=True).endswith(
         "add object_point rows on parts of the object the mask misses, background_point rows on "
-        "what it takes in beyond the object, or an object_box"
+        "what it takes in beyond the object, or an object_box (or an object_choice K for the "
+        "point's region K of masks.png)"
     )
     assert "cm apart" not in contact_line({"in_contact": False})
     assert contact_line({"in_contact": True, "contact_distance_cm": -0.2}) is None

@@ -1,8 +1,10 @@
-"""``--object-choice K``: the automatic path's numbered object regions, and picking one.
+"""``--object-choice K``: the numbered object regions of the automatic path and of an object
+point, and picking one.
 
-Drawn scene with a known answer: a held disk in the grasp and a second disk against the little
-finger's side. The automatic path takes the held disk; the other one is among the regions it
-offers instead, and picking it gives that disk.
+Drawn scenes with a known answer: a held disk in the grasp and a second disk against the little
+finger's side (the automatic path takes the held disk; the other one is among the regions it
+offers instead, and picking it gives that disk); and an object with a label of its own colour,
+clicked on the label (the point's first region is the label, the whole object is another).
 """
 
 from __future__ import annotations
@@ -17,7 +19,16 @@ from easyhoi.perception.chain import _choices_meta, segment_hands
 from easyhoi.perception.masks import ClassicalHOISegmenter
 from easyhoi.perception.outlines import mask_outlines, outlines_mask
 from easyhoi.perception.prompts import N_CHOICES, Prompts
-from tests.test_perception_held_object import BLUE, RED, S, det, grasped_disk, scene_of
+from tests.test_perception_held_object import (
+    BLUE,
+    RED,
+    S,
+    canvas,
+    det,
+    finish,
+    grasped_disk,
+    scene_of,
+)
 from tests.test_perception_masks import iou
 
 
@@ -36,9 +47,8 @@ def test_prompts_check_the_choice():
     for bad in (0, -1, True, 2.5, "2"):
         with pytest.raises(InvalidInputError, match="whole number >= 1"):
             Prompts(object_choice=bad)
-    with pytest.raises(InvalidInputError, match="cannot be combined"):
-        Prompts(object_points=((1.0, 2.0),), object_choice=2)
-    with pytest.raises(InvalidInputError, match="cannot be combined"):
+    assert Prompts(object_points=((1.0, 2.0),), object_choice=2).object_choice == 2
+    with pytest.raises(InvalidInputError, match="cannot be combined with --object-box"):
         Prompts(object_box=(0.0, 0.0, 4.0, 4.0), object_choice=1)
     p = Prompts(hand_point=(3.0, 3.0), object_choice=3)
     assert Prompts.from_dict(p.to_dict()) == p
@@ -60,8 +70,12 @@ def test_sidecar_files_carry_the_choice():
     ):
         with pytest.raises(InvalidInputError, match=msg):
             parse_prompts_csv("photo,kind,x,y,x1,y1\n" + row + "\n")
+    got = parse_prompts_csv("photo,kind,x,y\na.jpg,object_choice,2\na.jpg,object_point,4,5\n")
+    assert got["a.jpg"] == Prompts(object_points=((4.0, 5.0),), object_choice=2)
     with pytest.raises(InvalidInputError, match="cannot be combined"):
-        parse_prompts_csv("photo,kind,x,y\na.jpg,object_choice,2\na.jpg,object_point,4,5\n")
+        parse_prompts_csv(
+            "photo,kind,x,y,x1,y1\na.jpg,object_choice,2,,,\na.jpg,object_box,1,1,9,9\n"
+        )
 
 
 def test_the_choices_are_distinct_regions_the_automatic_one_first():
@@ -135,8 +149,8 @@ def test_cli_refuses_a_bad_choice_before_any_work(tmp_path, capsys):
     rc = main(["reconstruct", str(photo), "--out", str(out), "--object-choice", "0"])
     assert rc == 2 and "whole number >= 1" in capsys.readouterr().err
     rc = main(["reconstruct", str(photo), "--out", str(out), "--object-choice", "2",
-               "--object-point", "10,10"])  # fmt: skip
-    assert rc == 2 and "cannot be combined" in capsys.readouterr().err
+               "--object-box", "10,10,60,60"])  # fmt: skip
+    assert rc == 2 and "cannot be combined with --object-box" in capsys.readouterr().err
     assert not out.exists()
 
 
@@ -151,11 +165,15 @@ def test_the_web_page_state_carries_the_choice():
     assert ap.state_prompts(s2) == Prompts(object_choice=3)
     assert "object region 3" in ap.prompt_text(s2)
     assert ap.state_prompts(ap.set_choice(s2, labels[0])) is None
-    # object points replace the automatic path: the region then does not count, and the page
+    # with an object point the region is one of the point's; a box has none, and the page
     # says so
     s3 = ap.add_click(s2, "object point", (10, 10), (100, 80))
-    assert ap.state_prompts(s3) == Prompts(object_points=((10.5, 10.5),))
-    assert "counts only without object points" in ap.prompt_text(s3)
+    assert ap.state_prompts(s3) == Prompts(object_points=((10.5, 10.5),), object_choice=3)
+    s4 = ap.add_click(ap.add_click(s2, "object box corner", (10, 10), (100, 80)),
+                      "object box corner", (50, 40), (100, 80))  # fmt: skip
+    boxed = ap.state_prompts(s4)
+    assert boxed.object_box is not None and boxed.object_choice is None
+    assert "counts only without a box" in ap.prompt_text(s4)
 
 
 def test_the_mask_preview_shows_the_chosen_region(monkeypatch):
@@ -197,6 +215,19 @@ def test_masks_png_numbers_the_offered_regions():
         tinted = np.any(panel.image != 100, axis=-1)
         assert iou(tinted, small) > 0.9
     assert choice_panels(photo, {}, 0.5) == []
+    # regions a small part of the photo: every panel shows the same window round them
+    big = np.full((400, 600, 3), 100, np.uint8)
+    c = np.zeros((400, 600), bool)
+    c[100:140, 200:220] = True
+    d = np.zeros((400, 600), bool)
+    d[150:160, 230:260] = True
+    meta = {"object_choices": [mask_outlines(c), mask_outlines(d)], "object_choice": 1}
+    panels = choice_panels(big, meta, 1.0)
+    # the box round both (y 100-160, x 200-260) grown by a quarter of 60 on every side
+    assert all(p.image.shape[:2] == (90, 90) for p in panels)
+    for panel, m in zip(panels, (c, d), strict=True):
+        tinted = np.any(panel.image != 100, axis=-1)
+        assert iou(tinted, m[85:175, 185:275]) > 0.9
 
 
 def test_the_mask_preview_outlines_the_regions_numbered(tmp_path):
@@ -242,3 +273,57 @@ def test_object_prompts_next_to_an_object_mask_are_refused(tmp_path, capsys):
                    *extra])  # fmt: skip
         assert rc == 2 and "would steer nothing" in capsys.readouterr().err
     assert not out.exists()
+
+
+def labelled_object():
+    """(photo, the object, its label): a yellow bar right of the hand with a dark red label
+    across its middle, which GrabCut grown from a click on the label stops at."""
+    yy, xx = np.mgrid[0:S, 0:S]
+    obj = (np.abs(xx - 195) < 26) & (np.abs(yy - 62) < 48)
+    label = obj & (np.abs(yy - 62) < 16) & (np.abs(xx - 195) < 20)
+    img = canvas()
+    img[obj] = (230, 200, 60)
+    img[label] = (150, 20, 30)
+    img, hand = finish(img)
+    assert not (obj & hand).any()
+    return img, obj, label
+
+
+def test_a_points_regions_offer_the_whole_object_when_the_click_takes_a_part():
+    img, obj, label = labelled_object()
+    seg = ClassicalHOISegmenter(seed=0)
+    point = ((195.0, 62.0),)
+    first = seg.segment(img, det(), prompts=Prompts(object_points=point))
+    # the label scores highest, the whole object almost as high: offered, and said so
+    assert iou(first.object_mask, label) > 0.9
+    conf = first.confidence["object"]
+    assert conf.low and any("region 2" in r for r in conf.reasons)
+    ch = first.candidates
+    assert 2 <= len(ch) <= N_CHOICES and np.array_equal(ch[0], first.object_mask)
+    assert all(iou(ch[a], ch[b]) < 0.5 for a in range(len(ch)) for b in range(a + 1, len(ch)))
+    k = 1 + int(np.argmax([iou(m, obj) for m in ch]))
+    assert k == 2 and iou(ch[k - 1], obj) > 0.9
+    got = seg.segment(img, det(), prompts=Prompts(object_points=point, object_choice=k))
+    assert got.meta["object_choice"] == k and iou(got.object_mask, obj) > 0.95
+    assert not got.confidence["object"].low  # picked by the user: no margin warning
+    # the numbering stays: the same regions, the picked one as the object mask
+    assert np.array_equal(got.candidates[k - 1], got.object_mask)
+    assert len(got.candidates) == len(ch) and iou(got.candidates[0], label) > 0.8
+    assert np.array_equal(
+        seg.segment(img, det(), prompts=Prompts(object_points=point, object_choice=1)).object_mask,
+        first.object_mask,
+    )
+    with pytest.raises(InvalidInputError, match=f"has {len(ch)} distinct object region"):
+        seg.segment(img, det(), prompts=Prompts(object_points=point, object_choice=len(ch) + 1))
+    # through the chain: the point picks the hand, and region K is taken in one pass
+    calls = []
+
+    class Counting(ClassicalHOISegmenter):
+        def segment(self, image, hand, prompts=None, others=()):
+            calls.append(prompts)
+            return super().segment(image, hand, prompts=prompts, others=others)
+
+    prompts = Prompts(object_points=point, object_choice=k)
+    j, s, _, _ = segment_hands(img, [det()], Counting(seed=0), prompts=prompts)
+    assert j == 0 and iou(s.object_mask, obj) > 0.95 and calls == [prompts]
+    assert _choices_meta(s)["object_choice"] == k

@@ -50,8 +50,9 @@ Upload a photo of a hand holding an object and press **Run**. If the wrong objec
 click on the held object in the photo (add more clicks for more of it; *background point*
 marks what the mask takes in that is not the object; *hand point* marks the holding hand;
 *object box corner* takes two clicks at opposite corners of a box drawn close round the
-object), or pick another of the automatic path's *object regions* (numbered in `masks.png`),
-check it with **Show mask**, and run again. The reconstruction runs on this
+object), or pick another *object region* (numbered in `masks.png` and in the mask preview:
+the automatic path's or, after a click, the other outlines around the clicked point), check it
+with **Show mask**, and run again. The reconstruction runs on this
 machine's CPU: about half a minute with the *fast* preset on 2 cores, several minutes with
 *paper*. Same photo, points, preset and seed give the same result.
 """
@@ -198,7 +199,7 @@ def build_app(
                         clear = gr.Button("Clear points", elem_id="clear_points")
                 region = gr.Dropdown(
                     choices=ap.choice_labels(), value=ap.choice_labels()[0],
-                    label="Object region (the automatic path's; 'Show mask' shows the one used)",
+                    label="Object region (automatic, or the first click's; 'Show mask' shows it)",
                     elem_id="object_region",
                 )  # fmt: skip
                 prompt_line = gr.Markdown(ap.prompt_text(None), elem_id="prompt_text")

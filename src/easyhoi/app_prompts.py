@@ -145,12 +145,13 @@ def add_click(state: dict | None, mode: str, xy, shown_size: tuple[int, int]) ->
 
 
 def state_prompts(state: dict | None) -> Prompts | None:
-    """The :class:`Prompts` of a state (photo pixels), or None when there is none. Object
-    points replace the automatic path, so a region chosen from it counts only without them."""
+    """The :class:`Prompts` of a state (photo pixels), or None when there is none. The chosen
+    region is one of the automatic path's or, with object points, of the first point's; a box
+    has no numbered regions, so with one the choice does not count."""
     if not state:
         return None
     d = {k: state.get(k) for k in _STATE_PROMPTS}
-    if not state.get("object_points") and not state.get("object_box"):
+    if not state.get("object_box"):
         d["object_choice"] = state.get("object_choice")
     p = Prompts.from_dict(d)
     return None if p.empty else p
@@ -184,8 +185,8 @@ def prompt_text(state: dict | None) -> str:
         parts.append(f"not the object: {pts}")
     if p.object_choice is not None:
         parts.append(f"object region {p.object_choice}")
-    elif state.get("object_choice") and p.has_object_prompt:
-        parts.append("(the object region chosen counts only without object points or box)")
+    elif state.get("object_choice") and p.object_box is not None:
+        parts.append("(the object region chosen counts only without a box)")
     return "; ".join(parts + pending)
 
 
@@ -309,8 +310,8 @@ def mask_preview(
 
 
 def draw_regions(rgb: np.ndarray, regions) -> np.ndarray:
-    """``rgb`` with the outline of each object region the automatic path offers, numbered as
-    the *Object region* menu numbers them (``--object-choice K``)."""
+    """``rgb`` with the outline of each object region offered (the automatic path's or the
+    first click's), numbered as the *Object region* menu numbers them (``--object-choice K``)."""
     import cv2
     from PIL import Image, ImageDraw
 

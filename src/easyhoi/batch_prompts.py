@@ -11,7 +11,8 @@ Two formats, chosen by the file's extension:
 * CSV (``.csv``): a header ``photo,kind,x,y,x1,y1`` (``x1``, ``y1`` optional) and one row per
   prompt; ``kind`` is ``object_point`` (repeatable), ``object_box`` (``x,y`` = top left,
   ``x1,y1`` = bottom right), ``hand_point``, ``background_point`` (repeatable) or
-  ``object_choice`` (``x`` = K, the automatic path's object region K; no ``y``)::
+  ``object_choice`` (``x`` = K, object region K of the automatic path or of the photo's first
+  object point; no ``y``)::
 
       photo,kind,x,y,x1,y1
       IMG_1.jpg,object_point,412,310,,

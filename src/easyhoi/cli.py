@@ -665,8 +665,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a pixel that is not the held object, where the mask takes in too much "
                    "(repeatable)")  # fmt: skip
     p.add_argument("--object-choice", type=int, metavar="K",
-                   help="take the automatic path's object region K instead of its first "
-                   "(masks.png numbers them)")  # fmt: skip
+                   help="take object region K instead of the first (masks.png numbers them): "
+                   "the automatic path's, or with --object-point the point's "
+                   "outlines")  # fmt: skip
     p.add_argument("--strict", action="store_true",
                    help="exit 9, writing nothing, when a mask or the hand's keypoints have low "
                    "confidence")  # fmt: skip

@@ -345,6 +345,8 @@ def segment_hands(
         prompts = replace(prompts, object_choice=None)
     segment = _prompted(segmenter, name, prompts)
     order, choice = prompted_hand_order(hands, prompts)
+    if picked is not None and len(order) == 1:  # a prompt picked the hand: region K at once
+        segment = segment_picked
     takes_others = "others" in inspect.signature(segmenter.segment).parameters
 
     def others(i):
@@ -364,7 +366,7 @@ def segment_hands(
     _, _, i, s = max(results, key=lambda r: (r[0], r[1]))
     if choice is None:
         choice = "first holding an object" if len(results) == 1 else "most confident object"
-    if picked is not None:
+    if picked is not None and len(order) > 1:
         s = run(f"segmentation (hand {i}, object choice {picked})", segment_picked, image,
                 hands[i], **others(i))  # fmt: skip
     return i, s, notes, choice

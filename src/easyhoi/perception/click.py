@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from easyhoi.errors import InvalidInputError
 from easyhoi.geometry.masks import mask_iou
 from easyhoi.perception import held_object as ho
 from easyhoi.perception.not_object import encloses
@@ -441,7 +442,8 @@ def click_object(
     iterations: int,
     seed: int,
     inside: tuple[bool, bool, bool, bool] | None = None,
-) -> tuple[np.ndarray, list[tuple[float, dict]]]:
+    choice: int = 1,
+) -> tuple[np.ndarray, list[tuple[float, dict]], float | None, list[np.ndarray]]:
     """The object mask from one or more clicks.
 
     Args:
@@ -455,11 +457,13 @@ def click_object(
         seed (int): Seed of OpenCV's RNG.
         inside (tuple | None): Whether the photo goes on beyond the crop's left, top, right
             and bottom side (:func:`inner_edges`).
+        choice (int): Which of the first click's distinct regions (:func:`distinct_regions`,
+            1-based) becomes the object: 1 is the best-scored one.
 
     Returns:
-        tuple[np.ndarray, list[tuple[float, dict]], float | None]: The (h, w) bool object mask,
-        the (score, cues) of every candidate tried for the first click, and the chosen
-        candidate's :func:`click_margin`.
+        tuple: The (h, w) bool object mask, the (score, cues) of every candidate tried for the
+        first click, the chosen candidate's :func:`click_margin`, and the distinct regions
+        (best first, as scored, the chosen one replaced by the object mask).
     """
     h, w = img.shape[:2]
     pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
@@ -467,14 +471,50 @@ def click_object(
     p = pts[0]
     scored = scored_candidates(img, scene, p, regions, iterations, seed, inside)
     if not scored:
-        return _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden, [], None
-    best = max(range(len(scored)), key=lambda i: scored[i][0])
+        if choice > 1:
+            raise InvalidInputError(_no_choice(choice, 0))
+        obj = _disk((h, w), p, max(1.5, SURE * scene.palm)) & ~forbidden
+        return obj, [], None, [obj]
+    distinct = distinct_regions(scored)
+    if choice > len(distinct):
+        raise InvalidInputError(_no_choice(choice, len(distinct)))
+    best = distinct[choice - 1]
     margin = click_margin(scored, best)
     obj = finish_candidate(img, scene, scored[best][2], p, iterations, seed)
     obj = bridge_to_hand(img, scene, obj, p, iterations, seed, inside)
     for k in range(1, len(pts)):  # further clicks: the object grown to take each in
         obj = add_click(img, scene, obj, pts[: k + 1], iterations, seed, inside)
-    return obj, [(s, c) for s, c, _ in scored], margin
+    shown = [obj if i == best else scored[i][2] for i in distinct]
+    return obj, [(s, c) for s, c, _ in scored], margin, shown
+
+
+def distinct_regions(scored: list[tuple[float, dict, np.ndarray]]) -> list[int]:
+    """Indices of up to :data:`~easyhoi.perception.prompts.N_CHOICES` candidates, best score
+    first, each another region than the ones before it (IoU < :data:`OTHER_REGION_IOU`).
+
+    Why they are offered (``--object-choice K`` with an object point): around one point the
+    scores of the whole object and of a part of it (a label, a lid) or of the object with what
+    lies behind it lie within about half a point of each other, and which one wins moves with
+    the pixels (the same photo resampled or saved again as JPEG); the right region is more
+    often among the first few than first (docs/perception.md), and a user tells them apart at
+    a glance in ``masks.png``.
+    """
+    from easyhoi.perception.prompts import N_CHOICES
+
+    out: list[int] = []
+    for i in sorted(range(len(scored)), key=lambda i: -scored[i][0]):
+        if all(mask_iou(scored[i][2], scored[j][2], empty=1.0) < OTHER_REGION_IOU for j in out):
+            out.append(i)
+            if len(out) == N_CHOICES:
+                break
+    return out
+
+
+def _no_choice(choice: int, n: int) -> str:
+    return (
+        f"--object-choice {choice}: the object point has {n} distinct object region(s) "
+        "(masks.png numbers them)"
+    )
 
 
 def bridge_to_hand(

@@ -51,13 +51,18 @@ _ADVICE["strict"] = {
 }
 _ADVICE_MORE = {
     "cli": "add --object-point X,Y on parts of the object the mask misses, --background-point "
-    "X,Y on what it takes in beyond the object, or an --object-box",
+    "X,Y on what it takes in beyond the object, or an --object-box (or take the point's region "
+    "K of masks.png with --object-choice K)",
     "batch": "add object_point rows on parts of the object the mask misses, background_point "
-    "rows on what it takes in beyond the object, or an object_box",
+    "rows on what it takes in beyond the object, or an object_box (or an object_choice K for "
+    "the point's region K of masks.png)",
     "demo": "click on the parts of the object the mask misses (or, as background points, on "
     "what it takes in beyond the object) and run again",
 }
-_ADVICE_MORE["strict"] = _ADVICE_MORE["cli"]
+_ADVICE_MORE["strict"] = (
+    "add --object-point X,Y on parts of the object the mask misses, --background-point X,Y on "
+    "what it takes in beyond the object, or an --object-box"
+)
 
 
 def advice(mask: str, where: str = "cli", prompted: bool = False) -> str:

@@ -178,7 +178,8 @@ class ClassicalHOISegmenter:
     """
 
     #: The automatic path numbers its best distinct object regions, and ``--object-choice K``
-    #: takes region K (:attr:`Segmentation.candidates` holds them, the chosen one first).
+    #: takes region K (:attr:`Segmentation.candidates` holds them, the chosen one first); with
+    #: object points, the regions are the first point's distinct candidates, the best first.
     offers_choices = True
 
     def __init__(
@@ -267,7 +268,7 @@ class ClassicalHOISegmenter:
 
         props, click_margin, box_agreement, choices = None, None, None, []
         if clicks:
-            obj, hyp, best, props, click_margin = clicked_object(
+            obj, hyp, best, props, click_margin, regions = clicked_object(
                 img,
                 scene,
                 to_work(prompts.object_points),
@@ -275,8 +276,11 @@ class ClassicalHOISegmenter:
                 self.iterations,
                 self.seed,
                 inside=w.inside,
+                choice=prompts.object_choice or 1,
             )
             has_object = bool(obj.any())
+            # the point's other regions, numbered for --object-choice K (the object among them)
+            choices = [(k, m & ~excl) for k, m in enumerate(regions)] if len(regions) > 1 else []
         elif prompted:
             props = proposals()
             pts = to_work(prompts.object_points) if prompts.object_points else np.zeros((0, 2))
@@ -312,8 +316,13 @@ class ClassicalHOISegmenter:
             hand_m &= ~obj
         obj &= ~hand_m
         runner = ho.runner_up(hyp, best) if (hyp is not None and best is not None) else None
-        # a further point is the fix for an unsure first one: the margin counts for one alone
-        one_click_margin = click_margin if clicks and len(prompts.object_points) == 1 else None
+        # a further point is the fix for an unsure first one: the margin counts for one alone,
+        # and not for a region the user picked from the point's regions
+        one_click_margin = (
+            click_margin
+            if clicks and len(prompts.object_points) == 1 and (prompts.object_choice or 1) == 1
+            else None
+        )
         conf = {
             "hand": hand_confidence(hand, hand_m, kp, d2),
             "object": object_confidence(

@@ -264,7 +264,8 @@ def clicked_object(
     iterations: int,
     seed: int,
     inside: tuple[bool, bool, bool, bool] | None = None,
-) -> tuple[np.ndarray, ho.Hypotheses, int | None, Proposals | None, float | None]:
+    choice: int = 1,
+) -> tuple[np.ndarray, ho.Hypotheses, int | None, Proposals | None, float | None, list]:
     """The object from object points alone.
 
     The candidates are the GrabCut masks grown from the first point
@@ -282,18 +283,23 @@ def clicked_object(
         inside (tuple | None): Whether the photo goes on beyond the crop's left, top, right
             and bottom side (the ``frame`` cue of :func:`easyhoi.perception.click.click_score`;
             None: the crop is the whole photo).
+        choice (int): The first click's distinct region that becomes the object (1: the
+            best-scored; :func:`easyhoi.perception.click.distinct_regions`).
 
     Returns:
         tuple: (h, w) bool object mask, the hypotheses (the output mask alone), the index of
-        the chosen one, the proposals, and the first click's score margin over another region
-        (:func:`easyhoi.perception.click.click_margin`; None when there is none).
+        the chosen one, the proposals, the first click's score margin over another region
+        (:func:`easyhoi.perception.click.click_margin`; None when there is none), and the
+        first click's distinct regions (the chosen one as the object mask).
     """
     h, w = img.shape[:2]
     pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
     props = make_proposals()
     fallback = click_proposals(img, scene, pts[0], props)
-    obj, _, margin = click_object(img, scene, pts, fallback, iterations, seed, inside)
-    return obj, mask_hypothesis(obj, scene), 0, props, margin
+    obj, _, margin, regions = click_object(
+        img, scene, pts, fallback, iterations, seed, inside, choice
+    )
+    return obj, mask_hypothesis(obj, scene), 0, props, margin, regions
 
 
 def mask_hypothesis(mask: np.ndarray, scene: ho.Scene) -> ho.Hypotheses:

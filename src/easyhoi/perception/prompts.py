@@ -6,7 +6,9 @@ repeatable), a box around it (``--object-box X0,Y0,X1,Y1``), a point on the hand
 repeatable: where the mask takes in what is not the object). Coordinates are pixels of the
 original photo, x right, y down. Without a photo viewer at hand, one number does it: the
 automatic path shows its best distinct object regions, numbered, in ``masks.png``, and
-``--object-choice K`` takes region K instead of region 1.
+``--object-choice K`` takes region K instead of region 1. With an object point, the regions
+are the point's own distinct outlines (the whole object, a part of it, the object with what
+lies behind it), and ``--object-choice K`` takes the K-th of them.
 """
 
 from __future__ import annotations
@@ -17,9 +19,10 @@ import numpy as np
 
 from easyhoi.errors import InvalidInputError
 
-#: Object regions the automatic path offers for ``--object-choice`` (the one it uses included).
-#: On the development photos its own choice reaches IoU >= 0.5 on 32 %, the best of four on
-#: 42 %, and six reach no more (docs/prompts.md).
+#: Object regions offered for ``--object-choice`` (the one used included), by the automatic
+#: path and around an object point. On the development photos the automatic choice reaches
+#: IoU >= 0.5 on 32 %, the best of four regions on 42 %; a point's first region on 45 % of
+#: fresh copies of the photos, the best of its four on 68 % (docs/prompts.md).
 N_CHOICES = 4
 
 
@@ -32,8 +35,9 @@ class Prompts:
         object_box: (x0, y0, x1, y1) box around the held object, or None.
         hand_point: (x, y) point on the hand that holds the object, or None.
         background_points: ((x, y), ...) points that are not the object.
-        object_choice: K >= 1: the automatic path's K-th object region (1 is its own choice;
-            ``masks.png`` numbers them), or None.
+        object_choice: K >= 1: the K-th object region (1 is the one chosen without it;
+            ``masks.png`` numbers them) of the automatic path or, with object points, of the
+            first point's distinct outlines; or None.
     """
 
     object_points: tuple[tuple[float, float], ...] = ()
@@ -48,10 +52,10 @@ class Prompts:
             return
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
             raise InvalidInputError(f"--object-choice must be a whole number >= 1, got {k!r}")
-        if self.has_object_prompt:
+        if self.object_box is not None:
             raise InvalidInputError(
-                "--object-choice picks one of the automatic object regions; it cannot be "
-                "combined with --object-point or --object-box"
+                "--object-choice picks one of the object regions of the automatic path or of "
+                "an object point; it cannot be combined with --object-box"
             )
 
     @property

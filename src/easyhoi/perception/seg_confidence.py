@@ -111,7 +111,7 @@ def object_confidence(
             z -= CLICK_MARGIN_PENALTY
             reasons.append(
                 f"another outline around the point scores almost as high (margin "
-                f"{click_margin:.2f}): check masks.png"
+                f"{click_margin:.2f}): check masks.png, where it is region 2"
             )
         if box_agreement is not None and box_agreement < BOX_AGREEMENT:
             z -= CLICK_MARGIN_PENALTY

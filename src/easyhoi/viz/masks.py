@@ -83,22 +83,47 @@ def _compare(input_mask: np.ndarray, rendered: np.ndarray) -> np.ndarray:
     return _PALETTE[code]
 
 
+#: Margin around the offered regions in their panels, as a share of the regions' larger side.
+CHOICE_MARGIN = 0.25
+
+
 def choice_panels(photo: np.ndarray, meta: dict, scale: float) -> list[Panel]:
     """One panel per object region offered for ``--object-choice`` (``meta["object_choices"]``,
     outlines in photo pixels, :mod:`easyhoi.perception.outlines`), drawn on ``photo`` (the
-    photo resized by ``scale``), the one used marked; [] when there are none."""
+    photo resized by ``scale``), the one used marked; [] when there are none.
+
+    Every panel shows the same window: the box round all the regions, grown by
+    :data:`CHOICE_MARGIN` of its larger side on every side (within the photo), so that regions a
+    small part of the photo (a pen, a lid, a label) are large enough to tell apart.
+    """
     from easyhoi.perception.outlines import outlines_mask
 
     choices = meta.get("object_choices") or []
     used = meta.get("object_choice") or 1
+    regions = [outlines_mask(outlines, photo.shape[:2], scale) for outlines in choices]
+    if not regions:
+        return []
+    y0, y1, x0, x1 = _window(np.logical_or.reduce(regions))
     panels = []
-    for k, outlines in enumerate(choices, start=1):
-        m = outlines_mask(outlines, photo.shape[:2], scale)
+    for k, m in enumerate(regions, start=1):
         img = photo.copy()
         img[m] = (0.45 * img[m] + 0.55 * np.array(REGION_COLOUR)).astype(np.uint8)
         title = f"--object-choice {k}" + (" (used)" if k == used else "")
-        panels.append(Panel(img, title))
+        panels.append(Panel(np.ascontiguousarray(img[y0:y1, x0:x1]), title))
     return panels
+
+
+def _window(union: np.ndarray) -> tuple[int, int, int, int]:
+    """(y0, y1, x0, x1): the box round ``union`` grown by :data:`CHOICE_MARGIN` of its larger
+    side, within the picture; the whole picture when ``union`` is empty."""
+    h, w = union.shape
+    ys, xs = np.nonzero(union)
+    if not len(ys):
+        return 0, h, 0, w
+    pad = CHOICE_MARGIN * max(ys.max() - ys.min() + 1, xs.max() - xs.min() + 1)
+    y0, y1 = int(max(0, ys.min() - pad)), int(min(h, ys.max() + 1 + pad))
+    x0, x1 = int(max(0, xs.min() - pad)), int(min(w, xs.max() + 1 + pad))
+    return y0, y1, x0, x1
 
 
 def masks_png(

@@ -298,7 +298,9 @@ def render_pictures(
             zoom_inp,
             full_size=full_size,
             context=context,
-            choices=masks.choice_panels(photo, inp.meta, f),
+            choices=masks.choice_panels(
+                small_inp.image, inp.meta, small_inp.image.shape[1] / inp.image.shape[1]
+            ),
         ),  # fmt: skip
         "losses.png": losses_png(result),
     }
