@@ -21,8 +21,8 @@ from easyhoi.errors import InvalidInputError
 
 #: Object regions offered for ``--object-choice`` (the one used included), by the automatic
 #: path and around an object point. On the development photos the automatic choice reaches
-#: IoU >= 0.5 on 32 %, the best of four regions on 42 %; a point's first region on 45 % of
-#: fresh copies of the photos, the best of its four on 68 % (docs/prompts.md).
+#: IoU >= 0.5 on 32 %, the best of four regions on 42 %; a point's first region on 45-55 % of
+#: fresh copies of the photos, the best of its four on 68-71 % (docs/prompts.md).
 N_CHOICES = 4
 
 
