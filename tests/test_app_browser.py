@@ -266,6 +266,30 @@ def test_click_on_the_photo_adds_a_point_previews_the_mask_and_runs_with_it(serv
     # the run over (its progress gone from the overlay): the page ignores Run while one runs
     wait.until(lambda d: not d.find_elements(By.CSS_SELECTOR, "#overlay .progress-text"))
 
+    # Object point: its regions replace the automatic path's, so the menu is back at region 1;
+    # a region picked then is one of the point's
+    driver.find_element(
+        By.XPATH, "//*[@id='click_mode']//label[contains(., 'object point')]"
+    ).click()
+    _click_on_image(driver, driver.find_element(By.CSS_SELECTOR, "#preview img"), 0.5, 0.5)
+    wait.until(lambda d: "object point: (" in text("#prompt_text"))
+    region = driver.find_element(By.CSS_SELECTOR, "#object_region input")
+    wait.until(lambda d: region.get_attribute("value") == "1 (automatic)")
+    region.click()
+    region.send_keys(Keys.CONTROL, "a")
+    region.send_keys("2", Keys.ENTER)
+    wait.until(lambda d: "object region 2" in text("#prompt_text"))
+    driver.find_element(By.CSS_SELECTOR, "#run").click()
+    wait.until(lambda d: len(PROMPTS_SEEN) == 4)
+    assert len(PROMPTS_SEEN[-1].object_points) == 1 and PROMPTS_SEEN[-1].object_choice == 2
+    wait.until(lambda d: not d.find_elements(By.CSS_SELECTOR, "#overlay .progress-text"))
+    driver.find_element(By.CSS_SELECTOR, "#clear_points").click()
+    wait.until(lambda d: "Click on the held object" in text("#prompt_text"))
+    region.click()
+    region.send_keys(Keys.CONTROL, "a")
+    region.send_keys("3", Keys.ENTER)
+    wait.until(lambda d: "object region 3" in text("#prompt_text"))
+
     # Object box: two clicks at opposite corners; the box replaces the chosen region
     driver.find_element(
         By.XPATH, "//*[@id='click_mode']//label[contains(., 'object box corner')]"
@@ -281,7 +305,7 @@ def test_click_on_the_photo_adds_a_point_previews_the_mask_and_runs_with_it(serv
                              0.2, 0.3)  # fmt: skip
     wait.until(lambda d: "object box: (" in text("#prompt_text"))
     driver.find_element(By.CSS_SELECTOR, "#run").click()
-    wait.until(lambda d: len(PROMPTS_SEEN) == 4)
+    wait.until(lambda d: len(PROMPTS_SEEN) == 5)
     box = PROMPTS_SEEN[-1].object_box
     expect = [(int(bx) + 0.5) * 1.25, (int(by) + 0.5) * 1.25, (int(ax) + 0.5) * 1.25,
               (int(ay) + 0.5) * 1.25]  # fmt: skip

@@ -165,10 +165,16 @@ def test_the_web_page_state_carries_the_choice():
     assert ap.state_prompts(s2) == Prompts(object_choice=3)
     assert "object region 3" in ap.prompt_text(s2)
     assert ap.state_prompts(ap.set_choice(s2, labels[0])) is None
-    # with an object point the region is one of the point's; a box has none, and the page
-    # says so
+    # the first object point replaces the automatic regions by its own: the menu goes back to
+    # 1, and a region picked then is one of the point's, kept by further points
     s3 = ap.add_click(s2, "object point", (10, 10), (100, 80))
-    assert ap.state_prompts(s3) == Prompts(object_points=((10.5, 10.5),), object_choice=3)
+    assert ap.state_prompts(s3) == Prompts(object_points=((10.5, 10.5),))
+    assert ap.choice_label(s3) == labels[0] and ap.choice_label(s2) == "3"
+    s3 = ap.add_click(ap.set_choice(s3, "2"), "object point", (20, 20), (100, 80))
+    assert ap.state_prompts(s3) == Prompts(
+        object_points=((10.5, 10.5), (20.5, 20.5)), object_choice=2
+    )
+    # a box has no regions, and the page says so
     s4 = ap.add_click(ap.add_click(s2, "object box corner", (10, 10), (100, 80)),
                       "object box corner", (50, 40), (100, 80))  # fmt: skip
     boxed = ap.state_prompts(s4)

@@ -130,9 +130,10 @@ def build_app(
     def on_click(path, state, mode, evt: gr.SelectData):
         rgb, err, _ = ap.load_preview(path, max_upload_mb)
         if rgb is None:
-            return gr.update(), state, ap.prompt_text(state)
+            return gr.update(), state, ap.prompt_text(state), gr.update()
         state = ap.add_click(state, mode, evt.index, (rgb.shape[1], rgb.shape[0]))
-        return ap.draw_prompts(rgb, state), state, ap.prompt_text(state)
+        # the first object point replaces the automatic path's regions by its own: back to 1
+        return ap.draw_prompts(rgb, state), state, ap.prompt_text(state), ap.choice_label(state)
 
     # gradio passes the click by the parameter's type, which it reads as an object: this
     # module's annotations are strings (``from __future__ import annotations``)
@@ -245,8 +246,8 @@ def build_app(
                      queue=False)  # fmt: skip
         region.input(on_choice, [prompt_state, region], [prompt_state, prompt_line],
                      queue=False)  # fmt: skip
-        preview.select(on_click, [photo, prompt_state, mode], [preview, prompt_state, prompt_line],
-                       queue=False)  # fmt: skip
+        preview.select(on_click, [photo, prompt_state, mode],
+                       [preview, prompt_state, prompt_line, region], queue=False)  # fmt: skip
         clear.click(on_clear, [photo, prompt_state],
                     [preview, prompt_state, prompt_line, mask_view, mask_line, region],
                     queue=False)  # fmt: skip

@@ -26,6 +26,7 @@ __all__ = [
     "MODES",
     "PREVIEW_SIDE",
     "add_click",
+    "choice_label",
     "choice_labels",
     "draw_prompts",
     "draw_regions",
@@ -72,6 +73,12 @@ def choice_labels() -> list[str]:
     from easyhoi.perception.prompts import N_CHOICES
 
     return ["1 (automatic)"] + [str(k) for k in range(2, N_CHOICES + 1)]
+
+
+def choice_label(state: dict | None) -> str:
+    """The *Object region* menu's entry (:func:`choice_labels`) for the state's choice."""
+    k = (state or {}).get("object_choice") or 1
+    return choice_labels()[k - 1]
 
 
 def set_choice(state: dict | None, label: str | None) -> dict:
@@ -124,6 +131,8 @@ def add_click(state: dict | None, mode: str, xy, shown_size: tuple[int, int]) ->
     if mode == MODES[1]:
         state["hand_point"] = [px, py]
     elif mode == MODES[0]:
+        if not state.get("object_points"):  # the regions to pick from are now the point's
+            state["object_choice"] = None
         pts = list(state.get("object_points") or []) + [[px, py]]
         # the first point frames the object and picks the hand: past the cap, the oldest of
         # the further points goes
