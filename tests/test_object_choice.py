@@ -319,6 +319,9 @@ def test_a_points_regions_offer_the_whole_object_when_the_click_takes_a_part():
         seg.segment(img, det(), prompts=Prompts(object_points=point, object_choice=1)).object_mask,
         first.object_mask,
     )
+    # a further point grows the picked region: one inside it adds nothing
+    two = Prompts(object_points=(*point, (195.0, 30.0)), object_choice=k)
+    assert np.array_equal(seg.segment(img, det(), prompts=two).object_mask, got.object_mask)
     with pytest.raises(InvalidInputError, match=f"has {len(ch)} distinct object region"):
         seg.segment(img, det(), prompts=Prompts(object_points=point, object_choice=len(ch) + 1))
     # through the chain: the point picks the hand, and region K is taken in one pass
