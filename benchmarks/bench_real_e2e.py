@@ -24,10 +24,16 @@ reference masks, which the pipeline never sees:
 The summary, per mode, over the photos with a held object: the share usable, the share of the
 unusable ones that were warned about, the mean IoUs, and the masks lost by the optimizer.
 
+With ``--resample F`` and/or ``--jpeg Q`` every photo is first resampled by ``F`` and saved
+(as a JPEG of quality ``Q``, else losslessly) into a temporary folder, as ``bench_perception.py``
+does in memory, and the runs read those copies: the same scenes through pixels no setting was
+chosen on. The object point and the references are scaled to the copy's size.
+
 Usage::
 
     python benchmarks/bench_real_e2e.py [--only NAME] [--workers 2] [--mode auto|point|both]
                                         [--set KEY=VALUE ...] [--out FILE]
+    python benchmarks/bench_real_e2e.py --resample 0.85 --jpeg 90   # fresh copies
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ import argparse
 import json
 import os
 import sys
+import tempfile
 import time
 import zlib
 from concurrent.futures import ProcessPoolExecutor
@@ -45,7 +52,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from bench_perception import DATA, RESULTS, fit_to, iou, reference  # noqa: E402
+from bench_perception import DATA, RESULTS, fit_to, iou, reference, resample  # noqa: E402
 from preset_overrides import add_set_option, fast_overrides  # noqa: E402
 
 #: IoU from which a rendered hand or object counts as roughly right.
@@ -76,8 +83,15 @@ def run_one(ref_file: str, mode: str, data: str, overrides: dict | None = None) 
         if ref["point"] is None:
             row["status"] = "no reference point"
             return row
-        # a reference is drawn on the photo as stored, the pixels prompts are given in
-        prompts = Prompts(object_points=(tuple(float(v) for v in ref["point"]),))
+        # a reference is drawn on the photo as stored, the pixels prompts are given in (a
+        # resampled copy: the point scaled to it)
+        from PIL import Image
+
+        with Image.open(path) as im:
+            size = im.size
+        h0, w0 = ref["hand"][0].shape if ref["hand"] else size[::-1]
+        x, y = (float(v) for v in ref["point"])
+        prompts = Prompts(object_points=((x * size[0] / w0, y * size[1] / h0),))
     t0 = time.process_time()
     try:
         cfg = with_overrides(get_preset("fast"), overrides or {})
@@ -114,6 +128,27 @@ def run_one(ref_file: str, mode: str, data: str, overrides: dict | None = None) 
         row["hand_iou"] >= USABLE_IOU and row["object_iou"] >= USABLE_IOU and row["in_contact"]
     )
     return row
+
+
+def write_copies(files, src: Path, dst: Path, factor: float, jpeg: int | None) -> None:
+    """Copies of the references' photos under ``dst`` (same relative paths and names; the
+    decoder reads the content, not the extension): resampled by ``factor``, saved as JPEG of
+    quality ``jpeg`` (OpenCV's encoder, as ``bench_perception.py --jpeg``) or, without it,
+    losslessly as PNG."""
+    import cv2
+
+    from easyhoi.io.image import load_image
+
+    for f in files:
+        rel = reference(Path(f))["image"]
+        bgr = np.ascontiguousarray(resample(load_image(src / rel).rgb, factor)[..., ::-1])
+        fmt = (".png", []) if jpeg is None else (".jpg", [cv2.IMWRITE_JPEG_QUALITY, int(jpeg)])
+        ok, buf = cv2.imencode(fmt[0], bgr, fmt[1])
+        if not ok:
+            raise RuntimeError(f"encoding {rel} failed")
+        out = dst / rel
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_bytes(buf.tobytes())
 
 
 def _hidden_share(hand_visible: np.ndarray, object_mask: np.ndarray) -> float:
@@ -190,10 +225,18 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--out", type=Path, default=RESULTS / "bench_real_e2e.json", help="JSON of every row"
     )
+    ap.add_argument("--resample", type=float, default=1.0,
+                    help="run on copies of the photos resampled by this factor")  # fmt: skip
+    ap.add_argument("--jpeg", type=int, default=None, metavar="Q",
+                    help="run on copies saved as JPEG of quality Q (after --resample)")  # fmt: skip
     add_set_option(ap)
     args = ap.parse_args(argv)
     if args.workers < 1:
         ap.error(f"--workers must be >= 1, got {args.workers}")
+    if not args.resample > 0:
+        ap.error(f"--resample must be > 0, got {args.resample}")
+    if args.jpeg is not None and not 1 <= args.jpeg <= 100:
+        ap.error(f"--jpeg takes a quality from 1 to 100, got {args.jpeg}")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     overrides = fast_overrides(ap, args.set)
     files = [f for f in sorted(args.refs.glob("*.json")) if args.only in f.stem]
@@ -201,7 +244,11 @@ def main(argv=None) -> int:
         print(f"no reference files in {args.refs} matching {args.only!r}", file=sys.stderr)
         return 1
     modes = ("auto", "point") if args.mode == "both" else (args.mode,)
-    jobs = [(str(f), m, str(args.data), overrides) for f in files for m in modes]
+    data = args.data
+    if args.resample != 1.0 or args.jpeg is not None:
+        data = Path(tempfile.mkdtemp(prefix="easyhoi-copies-"))
+        write_copies(files, args.data, data, args.resample, args.jpeg)
+    jobs = [(str(f), m, str(data), overrides) for f in files for m in modes]
     rows = []
     with ProcessPoolExecutor(args.workers, initializer=_init_worker) as pool:
         for row, (f, *_) in zip(pool.map(run_one, *zip(*jobs, strict=True)), jobs, strict=True):

@@ -89,3 +89,36 @@ def test_a_bad_override_is_an_argument_error(capsys):
         be.main(["--set", "optim.camera.no_such_field=1"])
     assert exc.value.code == 2
     assert "no_such_field" in capsys.readouterr().err
+
+
+def test_copies_are_resampled_and_saved_as_jpeg(shared_data, tmp_path):
+    from PIL import Image
+
+    be = _script()
+    ref = ROOT / "tests" / "data" / "perception_refs" / "images__hort-phone.json"
+    be.write_copies([str(ref)], shared_data, tmp_path, 0.5, 90)
+    with Image.open(shared_data / "images" / "hort-phone.png") as im:
+        w, h = im.size
+    with Image.open(tmp_path / "images" / "hort-phone.png") as im:  # named as the original
+        assert im.format == "JPEG" and im.size == (round(w * 0.5), round(h * 0.5))
+    be.write_copies([str(ref)], shared_data, tmp_path, 1.0, None)
+    with Image.open(tmp_path / "images" / "hort-phone.png") as im:
+        assert im.format == "PNG" and im.size == (w, h)
+
+
+@pytest.mark.slow
+def test_a_click_on_a_resampled_copy_is_scaled_to_it(shared_data, tmp_path):
+    be = _script()
+    ref = ROOT / "tests" / "data" / "perception_refs" / "images__hort-phone.json"
+    be.write_copies([str(ref)], shared_data, tmp_path, 0.7, None)
+    row = be.run_one(str(ref), "point", str(tmp_path))
+    assert row["status"] == "ok" and row["input_object_iou"] >= 0.5 and row["usable"]
+
+
+def test_bad_copy_settings_are_argument_errors(capsys):
+    be = _script()
+    for args, msg in ((["--resample", "0"], "--resample must be > 0"),
+                      (["--jpeg", "101"], "quality from 1 to 100")):  # fmt: skip
+        with pytest.raises(SystemExit) as exc:
+            be.main(args)
+        assert exc.value.code == 2 and msg in capsys.readouterr().err
