@@ -205,15 +205,21 @@ def test_the_mask_preview_shows_the_chosen_region(monkeypatch):
     assert iou(obj, other) > 0.7
 
 
+def _regions(shape, *boxes, used=1):
+    """(masks, result meta) of rectangular regions ``(y0, y1, x0, x1)`` on a ``shape`` photo."""
+    masks = []
+    for y0, y1, x0, x1 in boxes:
+        m = np.zeros(shape, bool)
+        m[y0:y1, x0:x1] = True
+        masks.append(m)
+    return masks, {"object_choices": [mask_outlines(m) for m in masks], "object_choice": used}
+
+
 def test_masks_png_numbers_the_offered_regions():
     from easyhoi.viz.masks import choice_panels
 
     photo = np.full((60, 80, 3), 100, np.uint8)
-    a = np.zeros((120, 160), bool)
-    a[20:60, 20:60] = True
-    b = np.zeros((120, 160), bool)
-    b[70:110, 100:150] = True
-    meta = {"object_choices": [mask_outlines(a), mask_outlines(b)], "object_choice": 2}
+    (a, b), meta = _regions((120, 160), (20, 60, 20, 60), (70, 110, 100, 150), used=2)
     panels = choice_panels(photo, meta, 0.5)  # the photo shown at half its size
     assert [p.title for p in panels] == ["--object-choice 1", "--object-choice 2 (used)"]
     for panel, m in zip(panels, (a, b), strict=True):
@@ -223,11 +229,7 @@ def test_masks_png_numbers_the_offered_regions():
     assert choice_panels(photo, {}, 0.5) == []
     # regions a small part of the photo: every panel shows the same window round them
     big = np.full((400, 600, 3), 100, np.uint8)
-    c = np.zeros((400, 600), bool)
-    c[100:140, 200:220] = True
-    d = np.zeros((400, 600), bool)
-    d[150:160, 230:260] = True
-    meta = {"object_choices": [mask_outlines(c), mask_outlines(d)], "object_choice": 1}
+    (c, d), meta = _regions((400, 600), (100, 140, 200, 220), (150, 160, 230, 260))
     panels = choice_panels(big, meta, 1.0)
     # the box round both (y 100-160, x 200-260) grown by a quarter of 60 on every side
     assert all(p.image.shape[:2] == (90, 90) for p in panels)
