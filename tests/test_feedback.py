@@ -139,3 +139,24 @@ def test_strict_names_no_numbered_region_as_it_writes_no_masks_png():
     err = str(low_confidence_error(rep))
     assert "--object-point X,Y on the held object" in err and "masks.png" not in err
     assert err.endswith("(--strict: no result written)")
+
+
+def test_no_region_is_named_where_masks_png_numbers_none():
+    rep = report(object=(0.2, ("no contrast",)))
+    named = "--object-choice K"
+    assert named in low_confidence_lines(rep)[0]  # regions not known: named
+    for regions, shown in ((0, False), (1, False), (2, True), (4, True)):
+        rep["regions"] = regions
+        for prompted in (False, True):
+            cli = low_confidence_lines(rep, "cli", prompted)[0]
+            batch = low_confidence_lines(rep, "batch", prompted)[0]
+            assert (named in cli) is shown and ("object_choice" in batch) is shown
+    rep["regions"] = 1
+    assert low_confidence_lines(rep, "cli")[0].endswith(
+        "re-run with --object-point X,Y on the held object (or --object-box X0,Y0,X1,Y1 around it)"
+    )
+    assert low_confidence_lines(rep, "batch", prompted=True)[0].endswith(
+        "background_point rows on what it takes in beyond the object, or an object_box"
+    )
+    # the demo names no command-line option either way
+    assert "choice" not in low_confidence_lines(rep, "demo")[0]

@@ -203,6 +203,13 @@ def test_the_mask_preview_shows_the_chosen_region(monkeypatch):
     k = 1 + int(np.argmax([iou(m, other) for m in auto.candidates]))
     _, obj, facts = ap.segment_for_preview(img, cfg, Prompts(object_choice=k))
     assert iou(obj, other) > 0.7
+    # the chain's report counts the regions offered (the warnings name the choice only then)
+    from easyhoi.perception.chain import perceive
+    from easyhoi.settings import resolve_run
+
+    inp, rep = perceive(img, resolve_run(cfg))
+    assert rep.regions == len(auto.candidates) >= 2
+    assert inp.meta["perception"]["regions"] == len(inp.meta["object_choices"]) == rep.regions
 
 
 def _regions(shape, *boxes, used=1):

@@ -51,6 +51,8 @@ class PerceptionReport:
     hand_index: int | None = None
     #: how that hand was chosen: "first holding an object", "hand point" or "object prompt"
     hand_choice: str | None = None
+    #: object regions offered for ``--object-choice`` (None: not known)
+    regions: int | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -62,6 +64,7 @@ class PerceptionReport:
             "confidence": {k: v.to_dict() for k, v in self.confidence.items()},
             "hand_index": self.hand_index,
             "hand_choice": self.hand_choice,
+            "regions": self.regions,
         }
 
     @property
@@ -198,6 +201,7 @@ def perceive(
             choices = seg.candidates if pv.object_mask is None else ()  # none to pick from
             seg = Segmentation(hm, om, bool(om.any()), choices, seg.meta, conf)
         report.confidence.update(seg.confidence)
+        report.regions = len(seg.candidates)
     chosen = hands[idx]
     # how sure the detector is of each keypoint, where it can say (the optimizer's keypoint
     # terms weigh the joints by it); when it is unsure, a second look at the mirrored photo.

@@ -63,17 +63,32 @@ _ADVICE_MORE["strict"] = (
     "add --object-point X,Y on parts of the object the mask misses, --background-point X,Y on "
     "what it takes in beyond the object, or an --object-box"
 )
+# the object advice where masks.png numbers no regions to pick from (fewer than two)
+_NO_REGIONS = {
+    "cli": _ADVICE["strict"]["object"],
+    "batch": "give the photo an object_point on the held object in the --prompts file",
+}
+_NO_REGIONS_MORE = {
+    "cli": _ADVICE_MORE["strict"],
+    "batch": "add object_point rows on parts of the object the mask misses, background_point "
+    "rows on what it takes in beyond the object, or an object_box",
+}
 
 
-def advice(mask: str, where: str = "cli", prompted: bool = False) -> str:
+def advice(
+    mask: str, where: str = "cli", prompted: bool = False, regions: int | None = None
+) -> str:
     """What to do about a weak ``mask`` ("hand", "object", "amodal", or the hand's
     "keypoints"), for ``where``: "cli", "strict" (the command line when nothing is written,
     so no picture to pick a region from), "batch" or "demo".
 
     ``prompted``: the object was already pointed at (then: more object or background points,
-    or a box).
+    or a box). ``regions``: how many object regions the result offers for ``--object-choice``
+    (fewer than two: the choice is not named; None: not known, named).
     """
     kind = mask if mask in ("hand", "keypoints") else "object"
+    if kind == "object" and regions is not None and regions < 2 and where in _NO_REGIONS:
+        return (_NO_REGIONS_MORE if prompted else _NO_REGIONS)[where]
     if kind == "object" and prompted:
         return _ADVICE_MORE[where]
     return _ADVICE[where][kind]
@@ -89,7 +104,7 @@ def low_confidence_lines(perception: dict, where: str = "cli", prompted: bool = 
         what = "the hand's keypoints" if name == "keypoints" else f"the {name} mask"
         lines.append(
             f"low confidence in {what} (score {float(conf['score']):.2f}; weak: "
-            f"{reasons}): {advice(name, where, prompted)}"
+            f"{reasons}): {advice(name, where, prompted, perception.get('regions'))}"
         )
     return lines
 
