@@ -255,8 +255,8 @@ def test_click_margin_is_over_the_best_other_region():
     other = np.zeros((20, 20), bool)
     other[12:18, 12:18] = True
     scored = [(5.0, {}, near_copy), (6.0, {}, a), (5.7, {}, other), (4.0, {}, other)]
-    assert click_margin(scored, 1) == pytest.approx(0.3)
-    assert click_margin(scored[:2], 1) is None  # every candidate about the same region
+    assert click_margin(scored) == pytest.approx(0.3)
+    assert click_margin(scored[:2]) is None  # every candidate about the same region
 
 
 def test_segment_hands_picks_the_holding_hand_and_notes_the_other():

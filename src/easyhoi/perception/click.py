@@ -87,7 +87,7 @@ CLICK_AREA = (0.02, 4.0)
 #: Largest share of what :func:`bridge_to_hand` adds that may lie outside the hull of the mask
 #: and the hand's nearest pixel.
 BRIDGE_OUTSIDE = 0.1
-#: Candidates overlapping less than this (IoU) are other regions for :func:`click_margin`.
+#: Candidates overlapping less than this (IoU) are other regions (:func:`distinct_regions`).
 OTHER_REGION_IOU = 0.5
 
 
@@ -462,8 +462,9 @@ def click_object(
 
     Returns:
         tuple: The (h, w) bool object mask, the (score, cues) of every candidate tried for the
-        first click, the chosen candidate's :func:`click_margin`, and the distinct regions
-        (best first, as scored, the chosen one replaced by the object mask).
+        first click, the :func:`click_margin` of its own choice (None for a region picked
+        with ``choice`` > 1), and the distinct regions (best first, as scored, the chosen one
+        replaced by the object mask).
     """
     h, w = img.shape[:2]
     pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
@@ -479,7 +480,8 @@ def click_object(
     if choice > len(distinct):
         raise InvalidInputError(_no_choice(choice, len(distinct)))
     best = distinct[choice - 1]
-    margin = click_margin(scored, best)
+    # the margin says whether the click's own choice is a guess; a region the user picked is not
+    margin = click_margin(scored, distinct) if choice == 1 else None
     obj = finish_candidate(img, scene, scored[best][2], p, iterations, seed)
     obj = bridge_to_hand(img, scene, obj, p, iterations, seed, inside)
     for k in range(1, len(pts)):  # further clicks: the object grown to take each in
@@ -569,18 +571,16 @@ def bridge_to_hand(
     return u
 
 
-def click_margin(scored: list[tuple[float, dict, np.ndarray]], best: int) -> float | None:
-    """Score of candidate ``best`` less that of the best-scored candidate that is another
-    region (IoU < :data:`OTHER_REGION_IOU` with it); None when every candidate is about the
-    same region. The scores of different regions lie this close when the choice between them is
-    a guess: the same photo saved again as JPEG reorders candidates within about half a point
-    (docs/perception.md)."""
-    m0 = scored[best][2]
-    rest = sorted((i for i in range(len(scored)) if i != best), key=lambda i: -scored[i][0])
-    for i in rest:
-        if mask_iou(m0, scored[i][2], empty=1.0) < OTHER_REGION_IOU:
-            return float(scored[best][0] - scored[i][0])
-    return None
+def click_margin(
+    scored: list[tuple[float, dict, np.ndarray]], distinct: list[int] | None = None
+) -> float | None:
+    """Score of the best-scored candidate less that of the best-scored candidate that is another
+    region (regions 1 and 2 of :func:`distinct_regions`, given as ``distinct`` when already
+    found); None when every candidate is about the same region. The scores of different
+    regions lie this close when the choice between them is a guess: the same photo saved again
+    as JPEG reorders candidates within about half a point (docs/perception.md)."""
+    d = distinct_regions(scored) if distinct is None else distinct
+    return float(scored[d[0]][0] - scored[d[1]][0]) if len(d) > 1 else None
 
 
 def add_click(

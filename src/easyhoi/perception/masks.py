@@ -316,13 +316,8 @@ class ClassicalHOISegmenter:
             hand_m &= ~obj
         obj &= ~hand_m
         runner = ho.runner_up(hyp, best) if (hyp is not None and best is not None) else None
-        # a further point is the fix for an unsure first one: the margin counts for one alone,
-        # and not for a region the user picked from the point's regions
-        one_click_margin = (
-            click_margin
-            if clicks and len(prompts.object_points) == 1 and (prompts.object_choice or 1) == 1
-            else None
-        )
+        # a further point is the fix for an unsure first one: the margin counts for one alone
+        one_click_margin = click_margin if clicks and len(prompts.object_points) == 1 else None
         conf = {
             "hand": hand_confidence(hand, hand_m, kp, d2),
             "object": object_confidence(

@@ -289,8 +289,9 @@ def clicked_object(
     Returns:
         tuple: (h, w) bool object mask, the hypotheses (the output mask alone), the index of
         the chosen one, the proposals, the first click's score margin over another region
-        (:func:`easyhoi.perception.click.click_margin`; None when there is none), and the
-        first click's distinct regions (the chosen one as the object mask).
+        (:func:`easyhoi.perception.click.click_margin`; None when there is none or a region
+        was picked), and the first click's distinct regions (the chosen one as the object
+        mask).
     """
     h, w = img.shape[:2]
     pts = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0, [w - 1, h - 1])
