@@ -141,14 +141,21 @@ def resample(rgb: np.ndarray, factor: float, max_side: int = 1600) -> np.ndarray
     return cv2.resize(rgb, size, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_CUBIC)
 
 
+def encoded(rgb: np.ndarray, quality: int | None) -> bytes:
+    """``rgb`` as the bytes of a JPEG of ``quality`` (OpenCV's encoder), or of a PNG without
+    one."""
+    bgr = np.ascontiguousarray(rgb[..., ::-1])
+    fmt = (".png", []) if quality is None else (".jpg", [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    ok, buf = cv2.imencode(fmt[0], bgr, fmt[1])
+    if not ok:
+        raise RuntimeError(f"{fmt[0]} encoding failed")
+    return buf.tobytes()
+
+
 def reencode(rgb: np.ndarray, quality: int) -> np.ndarray:
     """``rgb`` saved as a JPEG of ``quality`` and read back: the same scene through other pixels
     (compression noise no one sees), as photos reach users after another save."""
-    ok, buf = cv2.imencode(
-        ".jpg", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)]
-    )
-    if not ok:
-        raise RuntimeError("JPEG encoding failed")
+    buf = np.frombuffer(encoded(rgb, quality), np.uint8)
     return np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
 
 

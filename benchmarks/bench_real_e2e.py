@@ -52,7 +52,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from bench_perception import DATA, RESULTS, fit_to, iou, reference, resample  # noqa: E402
+from bench_perception import DATA, RESULTS, encoded, fit_to, iou, reference, resample  # noqa: E402
 from preset_overrides import add_set_option, fast_overrides  # noqa: E402
 
 #: IoU from which a rendered hand or object counts as roughly right.
@@ -88,10 +88,8 @@ def run_one(ref_file: str, mode: str, data: str, overrides: dict | None = None) 
         from PIL import Image
 
         with Image.open(path) as im:
-            size = im.size
-        h0, w0 = ref["hand"][0].shape if ref["hand"] else size[::-1]
-        x, y = (float(v) for v in ref["point"])
-        prompts = Prompts(object_points=((x * size[0] / w0, y * size[1] / h0),))
+            point = fit_to(ref, im.size[::-1])["point"]
+        prompts = Prompts(object_points=(tuple(float(v) for v in point),))
     t0 = time.process_time()
     try:
         cfg = with_overrides(get_preset("fast"), overrides or {})
@@ -135,20 +133,13 @@ def write_copies(files, src: Path, dst: Path, factor: float, jpeg: int | None) -
     decoder reads the content, not the extension): resampled by ``factor``, saved as JPEG of
     quality ``jpeg`` (OpenCV's encoder, as ``bench_perception.py --jpeg``) or, without it,
     losslessly as PNG."""
-    import cv2
-
     from easyhoi.io.image import load_image
 
     for f in files:
         rel = reference(Path(f))["image"]
-        bgr = np.ascontiguousarray(resample(load_image(src / rel).rgb, factor)[..., ::-1])
-        fmt = (".png", []) if jpeg is None else (".jpg", [cv2.IMWRITE_JPEG_QUALITY, int(jpeg)])
-        ok, buf = cv2.imencode(fmt[0], bgr, fmt[1])
-        if not ok:
-            raise RuntimeError(f"encoding {rel} failed")
         out = dst / rel
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_bytes(buf.tobytes())
+        out.write_bytes(encoded(resample(load_image(src / rel).rgb, factor), jpeg))
 
 
 def _hidden_share(hand_visible: np.ndarray, object_mask: np.ndarray) -> float:
