@@ -245,6 +245,39 @@ def test_masks_png_numbers_the_offered_regions():
         assert iou(tinted, m[85:175, 185:275]) > 0.9
 
 
+def test_masks_png_rings_a_small_region_and_keeps_a_thin_one_visible():
+    """A region a few photo pixels wide (a pen) in a window that a large region sets: it is
+    outlined in the region colour and ringed, so it still shows once the panel is shrunk to
+    PANEL_WIDTH; the large region is outlined and not ringed."""
+    import cv2
+
+    from easyhoi.viz.marks import REGION_COLOUR
+    from easyhoi.viz.masks import PANEL_WIDTH, SMALL_REGION, choice_panels
+
+    photo = np.full((800, 1000, 3), 100, np.uint8)
+    (pen, table), meta = _regions((800, 1000), (400, 403, 480, 540), (100, 700, 100, 900))
+    panels = choice_panels(photo, meta, 1.0)
+    win = panels[0].image.shape[:2]
+    assert 60 < SMALL_REGION * max(win)  # the pen is small in the window, the table is not
+
+    def region_coloured(img):
+        return np.all(img == np.array(REGION_COLOUR, np.uint8), axis=-1)
+
+    y0, x0 = 0, 0  # the window starts at the photo's corner: the table's margin reaches it
+    for panel, m, ringed in zip(panels, (pen, table), (True, False), strict=True):
+        img = panel.image
+        grown = cv2.dilate(m.astype(np.uint8), np.ones((61, 61), np.uint8)).astype(bool)
+        far = ~grown[y0 : y0 + img.shape[0], x0 : x0 + img.shape[1]]
+        assert region_coloured(img).any()
+        assert bool(region_coloured(img)[far].any()) is ringed
+    # shrunk as masks.png shrinks it, the pen's panel still shows the region colour near it
+    img = panels[0].image
+    small = cv2.resize(img, (PANEL_WIDTH, round(PANEL_WIDTH * img.shape[0] / img.shape[1])),
+                       interpolation=cv2.INTER_AREA)  # fmt: skip
+    dist = np.abs(small.astype(int) - np.array(REGION_COLOUR)).sum(-1)
+    assert dist.min() < 60
+
+
 def test_the_mask_preview_outlines_the_regions_numbered(tmp_path):
     from PIL import Image
 

@@ -94,7 +94,9 @@ def choice_panels(photo: np.ndarray, meta: dict, scale: float) -> list[Panel]:
 
     Every panel shows the same window: the box round all the regions, grown by
     :data:`CHOICE_MARGIN` of its larger side on every side (within the photo), so that regions a
-    small part of the photo (a pen, a lid, a label) are large enough to tell apart.
+    small part of the photo (a pen, a lid, a label) are large enough to tell apart. Each region
+    is tinted and outlined (:func:`_mark_region`), so that one a few pixels wide still shows
+    when the panel is shrunk to :data:`PANEL_WIDTH`.
     """
     from easyhoi.perception.outlines import outlines_mask
 
@@ -108,9 +110,35 @@ def choice_panels(photo: np.ndarray, meta: dict, scale: float) -> list[Panel]:
     for k, m in enumerate(regions, start=1):
         img = photo.copy()
         img[m] = (0.45 * img[m] + 0.55 * np.array(REGION_COLOUR)).astype(np.uint8)
+        crop = np.ascontiguousarray(img[y0:y1, x0:x1])
+        _mark_region(crop, m[y0:y1, x0:x1])
         title = f"--object-choice {k}" + (" (used)" if k == used else "")
-        panels.append(Panel(np.ascontiguousarray(img[y0:y1, x0:x1]), title))
+        panels.append(Panel(crop, title))
     return panels
+
+
+#: A region whose box's larger side is below this share of its panel's larger side gets a ring.
+SMALL_REGION = 0.15
+
+
+def _mark_region(img: np.ndarray, m: np.ndarray) -> None:
+    """Outline the region ``m`` on ``img`` (in place), about 1.5 pixels wide once the panel is
+    shrunk to :data:`PANEL_WIDTH`; a small region (:data:`SMALL_REGION`) also gets a ring round
+    it, as the tint of a pen a few photo pixels wide vanishes when the panel is shrunk."""
+    import cv2
+
+    side = max(img.shape[:2])
+    width = max(1, round(1.5 * side / PANEL_WIDTH))
+    contours, _ = cv2.findContours(m.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return
+    cv2.drawContours(img, contours, -1, REGION_COLOUR, width)
+    ys, xs = np.nonzero(m)
+    extent = max(ys.max() - ys.min() + 1, xs.max() - xs.min() + 1)
+    if extent < SMALL_REGION * side:
+        centre = (int(round((xs.min() + xs.max()) / 2)), int(round((ys.min() + ys.max()) / 2)))
+        radius = int(round(max(0.75 * extent, 0.06 * side))) + 2 * width
+        cv2.circle(img, centre, radius, REGION_COLOUR, width)
 
 
 def _window(union: np.ndarray) -> tuple[int, int, int, int]:
