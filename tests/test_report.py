@@ -192,6 +192,10 @@ def test_object_shape_section_says_where_the_thickness_came_from():
     assert "the best of 3 families fitted" in section and "--object-shape NAME" in section
     one = {"object_shape": {"shape": "cuboid", "scores": {"cuboid": scores["cuboid"]}}}
     assert "chosen: cuboid, the one family fitted (--object-shape)" in report_mod._shape_html(one)
+    assert "parts of the score" in section  # two of the three scores have parts
+    plain = {k: {f: v[f] for f in ("iou", "complexity", "score")} for k, v in scores.items()}
+    no_parts = report_mod._shape_html({"object_shape": {"shape": "slab", "scores": plain}})
+    assert "parts of the score" not in no_parts and no_parts.count("<tr>") == 4
     # an imported mesh records no shape choice: no section
     assert report_mod._shape_html({}) == ""
 

@@ -176,7 +176,10 @@ def _shape_html(meta: Mapping, sides_cm=None) -> str:
             + " cm"
         )
     parts = ["<h2>Object shape</h2>"] + [f"<p>{html.escape(f)}</p>" for f in facts]
-    parts.append(_table(rows, ("family", "fit IoU", "complexity", "score", "parts of the score")))
+    header = ("family", "fit IoU", "complexity", "score", "parts of the score")
+    if not any(r[-1] for r in rows):  # no family's score has parts: no empty column
+        rows, header = [r[:-1] for r in rows], header[:-1]
+    parts.append(_table(rows, header))
     return "\n".join(parts)
 
 
