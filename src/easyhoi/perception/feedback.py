@@ -18,6 +18,22 @@ from __future__ import annotations
 
 from easyhoi.errors import LowConfidenceError
 
+# The object advice without the region choice: where masks.png numbers no regions to pick from
+# (fewer than two), and on the command line with --strict, which writes no masks.png. The
+# advice where there are regions names the choice as well.
+_NO_REGIONS = {
+    "cli": "re-run with --object-point X,Y on the held object (or --object-box X0,Y0,X1,Y1 "
+    "around it)",
+    "batch": "give the photo an object_point on the held object in the --prompts file",
+}
+# ... the same once the object was pointed at
+_NO_REGIONS_MORE = {
+    "cli": "add --object-point X,Y on parts of the object the mask misses, --background-point "
+    "X,Y on what it takes in beyond the object, or an --object-box",
+    "batch": "add object_point rows on parts of the object the mask misses, background_point "
+    "rows on what it takes in beyond the object, or an object_box",
+}
+
 #: The fix for a weak mask, per mask name: on the command line and in the web demo.
 _ADVICE = {
     "cli": {
@@ -29,8 +45,7 @@ _ADVICE = {
         "estimator, or use a photo where the hand is seen more clearly",
     },
     "batch": {
-        "object": "give the photo an object_point on the held object in the --prompts file "
-        "(or an object_choice K for region K of masks.png)",
+        "object": _NO_REGIONS["batch"] + " (or an object_choice K for region K of masks.png)",
         "hand": "give the photo a hand_point on the hand that holds the object in the --prompts "
         "file",
         "keypoints": "the hand's pose may be wrong: reconstruct the photo alone with "
@@ -44,34 +59,15 @@ _ADVICE = {
     },
 }
 # --strict writes nothing, so there is no masks.png to pick a numbered region from
-_ADVICE["strict"] = {
-    **_ADVICE["cli"],
-    "object": "re-run with --object-point X,Y on the held object (or --object-box "
-    "X0,Y0,X1,Y1 around it)",
-}
+_ADVICE["strict"] = {**_ADVICE["cli"], "object": _NO_REGIONS["cli"]}
 _ADVICE_MORE = {
-    "cli": "add --object-point X,Y on parts of the object the mask misses, --background-point "
-    "X,Y on what it takes in beyond the object, or an --object-box (or take the point's region "
-    "K of masks.png with --object-choice K)",
-    "batch": "add object_point rows on parts of the object the mask misses, background_point "
-    "rows on what it takes in beyond the object, or an object_box (or an object_choice K for "
-    "the point's region K of masks.png)",
+    "cli": _NO_REGIONS_MORE["cli"]
+    + " (or take the point's region K of masks.png with --object-choice K)",
+    "batch": _NO_REGIONS_MORE["batch"]
+    + " (or an object_choice K for the point's region K of masks.png)",
     "demo": "click on the parts of the object the mask misses (or, as background points, on "
     "what it takes in beyond the object) and run again",
-}
-_ADVICE_MORE["strict"] = (
-    "add --object-point X,Y on parts of the object the mask misses, --background-point X,Y on "
-    "what it takes in beyond the object, or an --object-box"
-)
-# the object advice where masks.png numbers no regions to pick from (fewer than two)
-_NO_REGIONS = {
-    "cli": _ADVICE["strict"]["object"],
-    "batch": "give the photo an object_point on the held object in the --prompts file",
-}
-_NO_REGIONS_MORE = {
-    "cli": _ADVICE_MORE["strict"],
-    "batch": "add object_point rows on parts of the object the mask misses, background_point "
-    "rows on what it takes in beyond the object, or an object_box",
+    "strict": _NO_REGIONS_MORE["cli"],
 }
 
 
