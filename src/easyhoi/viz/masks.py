@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from easyhoi.errors import InvalidInputError
-from easyhoi.geometry.masks import mask_iou
+from easyhoi.geometry.masks import mask_box, mask_iou
 from easyhoi.hoi import HOIInput, HOIResult
 from easyhoi.render.raster import depth_map
 from easyhoi.viz.compose import Panel, compose_grid
@@ -108,10 +108,9 @@ def choice_panels(photo: np.ndarray, meta: dict, scale: float) -> list[Panel]:
     y0, y1, x0, x1 = _window(np.logical_or.reduce(regions))
     panels = []
     for k, m in enumerate(regions, start=1):
-        img = photo.copy()
-        img[m] = (0.45 * img[m] + 0.55 * np.array(REGION_COLOUR)).astype(np.uint8)
-        crop = np.ascontiguousarray(img[y0:y1, x0:x1])
-        _mark_region(crop, m[y0:y1, x0:x1])
+        crop, m = photo[y0:y1, x0:x1].copy(), m[y0:y1, x0:x1]  # the window holds every region
+        crop[m] = (0.45 * crop[m] + 0.55 * np.array(REGION_COLOUR)).astype(np.uint8)
+        _mark_region(crop, m)
         title = f"--object-choice {k}" + (" (used)" if k == used else "")
         panels.append(Panel(crop, title))
     return panels
@@ -133,10 +132,10 @@ def _mark_region(img: np.ndarray, m: np.ndarray) -> None:
     if not contours:
         return
     cv2.drawContours(img, contours, -1, REGION_COLOUR, width)
-    ys, xs = np.nonzero(m)
-    extent = max(ys.max() - ys.min() + 1, xs.max() - xs.min() + 1)
+    u0, v0, u1, v1 = mask_box(m)
+    extent = max(v1 - v0, u1 - u0)
     if extent < SMALL_REGION * side:
-        centre = (int(round((xs.min() + xs.max()) / 2)), int(round((ys.min() + ys.max()) / 2)))
+        centre = (int(round((u0 + u1 - 1) / 2)), int(round((v0 + v1 - 1) / 2)))
         radius = int(round(max(0.75 * extent, 0.06 * side))) + 2 * width
         cv2.circle(img, centre, radius, REGION_COLOUR, width)
 
@@ -145,13 +144,12 @@ def _window(union: np.ndarray) -> tuple[int, int, int, int]:
     """(y0, y1, x0, x1): the box round ``union`` grown by :data:`CHOICE_MARGIN` of its larger
     side, within the picture; the whole picture when ``union`` is empty."""
     h, w = union.shape
-    ys, xs = np.nonzero(union)
-    if not len(ys):
+    if not union.any():
         return 0, h, 0, w
-    pad = CHOICE_MARGIN * max(ys.max() - ys.min() + 1, xs.max() - xs.min() + 1)
-    y0, y1 = int(max(0, ys.min() - pad)), int(min(h, ys.max() + 1 + pad))
-    x0, x1 = int(max(0, xs.min() - pad)), int(min(w, xs.max() + 1 + pad))
-    return y0, y1, x0, x1
+    u0, v0, u1, v1 = mask_box(union)
+    pad = CHOICE_MARGIN * max(v1 - v0, u1 - u0)
+    y0, y1 = int(max(0, v0 - pad)), int(min(h, v1 + pad))
+    return y0, y1, int(max(0, u0 - pad)), int(min(w, u1 + pad))
 
 
 def masks_png(
