@@ -6,13 +6,13 @@ sides are most symmetric (:func:`symmetry`, :func:`mirror_axis`): where the hand
 or the photo's edge cuts it, the principal axes lean towards the side that is seen. The radius
 ``r(s)`` along the axis is the mean of the mask's extents on the two sides of the axis on the
 line perpendicular to it at ``s`` (integrals of the bilinearly interpolated mask), along the
-searched axis the longer one where the shorter side ends on a hidden pixel (:func:`profile`);
-of each principal axis and its searched neighbour the one with the better evidence is kept, and
-the profile is revolved into rings capped by flat disks. The depth follows from the outline
-(round cross-sections), so the family has a rigid depth. Evidence besides the silhouette IoU:
-the reflection IoU (the outline is mirror-symmetric about the axis, counted over every pixel
-inside the photo), recorded as ``reflection_iou``; the selector uses ``min(reflection IoU,
-profile IoU)``.
+searched axis the longer one where the shorter side ends on a hidden pixel, the pixel staircase
+averaged out (:func:`profile`); of each principal axis and its searched neighbour the one with
+the better evidence is kept, and the profile is revolved into rings capped by flat disks. The
+depth follows from the outline (round cross-sections), so the family has a rigid depth.
+Evidence besides the silhouette IoU: the reflection IoU (the outline is mirror-symmetric about
+the axis, counted over every pixel inside the photo), recorded as ``reflection_iou``; the
+selector uses ``min(reflection IoU, profile IoU)``.
 
 Tilt. A can, a cup or a bottle tilted out of the image by ``t`` has a shorter outline, and its
 flat end disk of radius ``r_e`` is seen as an ellipse with semi-axes ``r_e`` across the axis and
@@ -140,6 +140,7 @@ def profile(mask: np.ndarray, c: np.ndarray, a: np.ndarray, n_samples: int, weig
     bilinearly interpolated mask from the axis outwards); ``r`` is their mean, or the longer
     one where the shorter side ends on a pixel of zero ``weight`` (the hand or the photo's edge
     hides it there: occlusion only shortens an outline). Without ``weight`` it is half the chord.
+    The radii are then cleared of the pixel staircase (:func:`denoise_profile`).
 
     Returns ``s`` (K,), ``r`` (K,) and the normal ``n`` (2,).
     """
@@ -186,8 +187,8 @@ def denoise_profile(s: np.ndarray, r: np.ndarray) -> np.ndarray:
 
     A binary outline at the working frame's resolution whose edge runs at an angle to the pixel
     grid measures its chord in whole-pixel steps: a straight side gives radii that ripple by up
-    to a pixel (2-3 % on a can 40 px wide), and the revolved surface shows them as rings. A
-    bilateral average (weights fall with the distance along the axis, scale
+    to a pixel (1.5-2.5 % on a can about 30 px wide), and the revolved surface shows them as
+    rings. A bilateral average (weights fall with the distance along the axis, scale
     :data:`PROFILE_SMOOTH_S`, and with the difference of the radii, scale
     :data:`PROFILE_SMOOTH_R`) averages the ripple along the side, while a step of several pixels
     (a bottle's shoulder, a lid) gets almost no weight from the other side of it and stays.
