@@ -334,7 +334,7 @@ def test_disk_full_in_reconstruct_exits_10_and_leaves_nothing(tmp_path, capsys, 
 
 
 def test_disk_full_in_batch_worker_and_in_manifest(tmp_path, capsys, monkeypatch):
-    import easyhoi.batch as batch
+    import easyhoi.batch_manifest as manifest
     import easyhoi.io.atomic as atomic
 
     photos, out = tmp_path / "photos", tmp_path / "out"
@@ -352,7 +352,7 @@ def test_disk_full_in_batch_worker_and_in_manifest(tmp_path, capsys, monkeypatch
     ] * 2
     assert sorted(p.name for p in out.iterdir()) == ["manifest.csv", "manifest.jsonl"]
     # the manifest's own disk fills up: the CLI exits 10, the manifest keeps whole lines only
-    monkeypatch.setattr(batch, "os", _FullDisk(allow=1, fail=("fsync",)))
+    monkeypatch.setattr(manifest, "os", _FullDisk(allow=1, fail=("fsync",)))
     rc = main(["batch", str(photos), "--out", str(out), "--engine", "inline", "-q",
                "--set", "optim.camera.max_iters=1"])  # fmt: skip
     err = capsys.readouterr().err
