@@ -200,6 +200,26 @@ def test_object_shape_section_says_where_the_thickness_came_from():
     assert report_mod._shape_html({}) == ""
 
 
+def test_object_shape_section_names_a_runner_up_within_the_near_tie():
+    scores = {
+        "inflation": {"iou": 0.99, "complexity": 0.08, "score": 0.910},
+        "slab": {"iou": 0.996, "complexity": 0.12, "score": 0.876},
+        "cuboid": {"iou": 0.9, "complexity": 0.06, "score": 0.84},
+    }
+    meta = {"object_shape": {"shape": "inflation", "scores": scores}}
+    section = report_mod._shape_html(meta)
+    assert "near tie: slab scored 0.034 below inflation" in section
+    assert "--object-shape slab fits that family alone" in section
+    # a clear winner: no such line
+    scores["slab"]["score"] = 0.910 - report_mod.NEAR_TIE - 0.001
+    assert "near tie" not in report_mod._shape_html(meta)
+    scores["slab"]["score"] = 0.910 - report_mod.NEAR_TIE + 0.001
+    assert "near tie: slab scored 0.039 below inflation" in report_mod._shape_html(meta)
+    # one family fitted (--object-shape): nothing to compare
+    one = {"object_shape": {"shape": "slab", "scores": {"slab": scores["slab"]}}}
+    assert "near tie" not in report_mod._shape_html(one)
+
+
 def test_report_of_a_chain_result_has_the_object_shape(scene):
     result, inp = scene
     meta = dict(result.meta, object_shape={"shape": "revolution", "scores": {

@@ -126,6 +126,27 @@ _SCORE_NOTES = {
 }
 
 
+#: A runner-up family whose score is within this of the chosen one's is named in the report:
+#: the outline alone hardly tells the two apart (on the development photos the inflation wins
+#: most outlines by less than this over the slab or the next family; docs/object_shape.md).
+NEAR_TIE = 0.04
+
+
+def _near_tie(scores: Mapping, order: list[str], chosen) -> str | None:
+    """The report's line on a runner-up within :data:`NEAR_TIE` of the chosen family, or None."""
+    if chosen not in scores or len(order) < 2:
+        return None
+    runner = next(k for k in order if k != chosen)
+    margin = float(scores[chosen].get("score", 0.0)) - float(scores[runner].get("score", 0.0))
+    if margin >= NEAR_TIE:
+        return None
+    return (
+        f"near tie: {runner} scored {margin:.3f} below {chosen}, so the outline alone hardly "
+        f"tells them apart; if the object is more like a {runner}, --object-shape {runner} "
+        "fits that family alone"
+    )
+
+
 def _shape_html(meta: Mapping, sides_cm=None) -> str:
     """The object step's choice: the family, where the thickness along the view came from, the
     object's size, and every family's score (``meta["object_shape"]``, written by the offline
@@ -167,6 +188,8 @@ def _shape_html(meta: Mapping, sides_cm=None) -> str:
             "--object-shape NAME fits that family alone"
         )
     facts = [f"chosen: {shape.get('shape')}, {how}", depth]
+    if (tie := _near_tie(scores, order, shape.get("shape"))) is not None:
+        facts.append(tie)
     if shape.get("tilt_deg"):
         facts.append(f"tilted out of the image by {fmt(shape['tilt_deg'])} degrees (keypoints)")
     if sides_cm is not None:
