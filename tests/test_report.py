@@ -209,7 +209,7 @@ def test_object_shape_section_names_a_runner_up_within_the_near_tie():
     meta = {"object_shape": {"shape": "inflation", "scores": scores}}
     section = report_mod._shape_html(meta)
     assert "near tie: slab scored 0.034 below inflation" in section
-    assert "--object-shape slab fits that family alone" in section
+    assert "(--object-shape slab fits that family alone)" in section
     # a clear winner: no such line
     scores["slab"]["score"] = 0.910 - report_mod.NEAR_TIE - 0.001
     assert "near tie" not in report_mod._shape_html(meta)

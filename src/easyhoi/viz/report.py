@@ -142,8 +142,7 @@ def _near_tie(scores: Mapping, order: list[str], chosen) -> str | None:
         return None
     return (
         f"near tie: {runner} scored {margin:.3f} below {chosen}, so the outline alone hardly "
-        f"tells them apart; if the object is more like a {runner}, --object-shape {runner} "
-        "fits that family alone"
+        f"tells them apart (--object-shape {runner} fits that family alone)"
     )
 
 
