@@ -44,7 +44,7 @@ from easyhoi.batch_manifest import (
     MANIFEST_JSONL,
     ItemRecord,
     ManifestWriter,
-    _finished,
+    latest_outcomes,
     read_manifest,
     write_manifest_csv,
 )
@@ -422,7 +422,7 @@ def run_batch(
     out.mkdir(parents=True, exist_ok=True)
     manifest = out / MANIFEST_JSONL
     lock = _lock_and_sweep(out, [t.output for t in tasks], wait)
-    done_before = _finished(read_manifest(manifest)) if resume else {}
+    done_before = latest_outcomes(read_manifest(manifest)) if resume else {}
 
     todo, skipped, recovered = [], [], []
     for t in tasks:

@@ -31,7 +31,7 @@ _CSV_FIELDS = ("path", "status", "error_type", "error", "exit_code", "internal",
 
 @dataclass(frozen=True)
 class ItemRecord:
-    """One manifest line (see the module docstring for the fields)."""
+    """One manifest line (its fields: the module docstring of :mod:`easyhoi.batch`)."""
 
     path: str
     image: str
@@ -161,7 +161,7 @@ def read_manifest(path: str | Path) -> list[dict]:
     return out
 
 
-def _finished(records: list[dict]) -> dict[str, dict]:
+def latest_outcomes(records: list[dict]) -> dict[str, dict]:
     """Latest ok/failed record per path (``skipped`` lines carry no new outcome)."""
     latest: dict[str, dict] = {}
     for rec in records:
