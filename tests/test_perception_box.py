@@ -170,3 +170,35 @@ def test_a_point_mask_that_runs_out_of_the_frame_on_every_side_is_unsure():
     # a box says how large the object is and where it ends: there the rule does not apply
     boxed = object_confidence(across, 0, None, True, True, 1.0, box_agreement=BOX_AGREEMENT)
     assert not any("every side" in r for r in boxed.reasons)
+
+
+def test_a_clicked_skin_coloured_object_is_no_doubt_but_skin_beyond_the_click_is():
+    from easyhoi.perception.held_object import CUES
+    from easyhoi.perception.seg_confidence import SKIN_REASON
+
+    yy, xx = np.mgrid[0:S, 0:S]
+    obj = ((xx - 190) ** 2) / 30**2 + ((yy - 60) ** 2) / 22**2 < 1
+    img, hand = scene_of([(obj, SKIN)])  # a beige object: the hand's own colour
+    hyp = mask_hypothesis(obj, scene_cues(img, hand))
+    share = float(hyp.cues[0][CUES.index("skin")])
+    assert share > 0.9
+    unpointed = object_confidence(hyp, 0, None, True, True, 1.0)
+    on_skin = object_confidence(hyp, 0, None, True, True, 1.0, point_skin=1.0)
+    off_skin = object_confidence(hyp, 0, None, True, True, 1.0, point_skin=0.0)
+    # all of it has the hand's colour: unsure when nothing says that colour is the object's
+    assert unpointed.low and "skin colour" in unpointed.reasons[0]
+    assert off_skin.low and "where the point has 0%" in off_skin.reasons[0]
+    # a point on that colour says it is the object's: no doubt, no reason given
+    assert not on_skin.low and not on_skin.reasons
+    # only the excess over the point's share counts: logistic(2.5 - 3 * excess)
+    for at in (0.2, 0.5, 0.8):
+        c = object_confidence(hyp, 0, None, True, True, 1.0, point_skin=at)
+        excess = max(0.0, share - at)
+        assert abs(c.score - 1.0 / (1.0 + np.exp(-(2.5 - 3.0 * excess)))) < 1e-9
+        assert (excess > SKIN_REASON) == any("skin colour" in r for r in c.reasons)
+    # through the segmenter: a click on the beige object finds it and trusts it
+    seg = ClassicalHOISegmenter(seed=0).segment(
+        img, det(), prompts=Prompts(object_points=((190.0, 60.0),))
+    )
+    assert iou(seg.object_mask, obj) > 0.8
+    assert not any("skin colour" in r for r in seg.confidence["object"].reasons)

@@ -425,13 +425,18 @@ def hand_rim(scene: ho.Scene, p: np.ndarray) -> np.ndarray:
     takes it in; the rim is the hand's colour and touches it. A click on a skin-coloured object
     (a beige cup) says that colour is the object's, so nothing is taken away then."""
     h, w = scene.hand.shape
-    L = scene.palm
-    skin = scene.skin_d2 < SKIN_D2
-    at = _disk((h, w), p, max(2.0, 0.15 * L)) & ~scene.hand
-    if at.any() and float(skin[at].mean()) > 0.5:
+    if point_skin(scene, p) > 0.5:
         return np.zeros((h, w), bool)
     dist = cv2.distanceTransform((~scene.hand).astype(np.uint8), cv2.DIST_L2, 5)
-    return skin & (dist < RIM * L)
+    return (scene.skin_d2 < SKIN_D2) & (dist < RIM * scene.palm)
+
+
+def point_skin(scene: ho.Scene, p: np.ndarray) -> float:
+    """Share of the pixels within 0.15 L of the point ``p`` (working pixels), off the hand
+    mask, that have this hand's skin colour (0 when the disk lies on the hand): how much of
+    what the user pointed at has the hand's colour."""
+    at = _disk(scene.hand.shape, p, max(2.0, 0.15 * scene.palm)) & ~scene.hand
+    return float((scene.skin_d2[at] < SKIN_D2).mean()) if at.any() else 0.0
 
 
 def click_object(

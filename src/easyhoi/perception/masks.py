@@ -318,6 +318,11 @@ class ClassicalHOISegmenter:
         runner = ho.runner_up(hyp, best) if (hyp is not None and best is not None) else None
         # a further point is the fix for an unsure first one: the margin counts for one alone
         one_click_margin = click_margin if clicks and len(prompts.object_points) == 1 else None
+        point_skin = None
+        if prompted and prompts.object_points:
+            from easyhoi.perception.click import point_skin as skin_at
+
+            point_skin = max(skin_at(scene, p) for p in to_work(prompts.object_points))
         conf = {
             "hand": hand_confidence(hand, hand_m, kp, d2),
             "object": object_confidence(
@@ -329,6 +334,7 @@ class ClassicalHOISegmenter:
                 self.min_score,
                 one_click_margin,
                 box_agreement,
+                point_skin,
             ),
         }
 

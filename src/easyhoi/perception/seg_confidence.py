@@ -10,8 +10,10 @@ a grasped object lies (pressed by several fingers and the thumb, filling the gra
 background running out of the picture, with a closed outline); a small margin means another
 region is almost as good a held object, and the choice between them is a guess. Prompted: the
 user said where the object is, so only a region that grew far beyond the prompt (larger than
-held objects are, or running out of the frame around the points on all four sides) or looks
-like skin lowers the score, and, for a single object point, another outline around the point that
+held objects are, or running out of the frame around the points on all four sides) or has more
+of the hand's skin colour than what the points are on (a mask grown into the hand's rim, the arm
+or a face; a point on a beige cup says that colour is the object's) lowers the score, and, for a
+single object point, another outline around the point that
 scores almost as high (the click's choice between them is then a guess, which a second point
 on what the mask misses, or a background point on what it takes in, settles). An object box
 says how large the object is, so there size does not count; what does is whether the box's
@@ -47,6 +49,9 @@ CLICK_MARGIN_PENALTY = 3.0
 #: (reference box + 5 %) the rule flags 10 of the 13 masks with IoU < 0.5 and 9 of the 25 with
 #: IoU >= 0.5 (11 with the skin cue).
 BOX_AGREEMENT = 2
+#: A mask with more than this share of the hand's skin colour is named as doubtful (in a prompted
+#: mask: more than the share around the object points).
+SKIN_REASON = 0.3
 
 
 def _sigmoid(z: float) -> float:
@@ -60,7 +65,7 @@ def weak_cues(cues: dict) -> list[str]:
         out.append(f"touches {int(cues['fingers'])} fingertip(s)")
     if not cues["thumb"]:
         out.append("the thumb does not touch it")
-    if cues["skin"] > 0.3:
+    if cues["skin"] > SKIN_REASON:
         out.append(f"{cues['skin']:.0%} of it has the hand's skin colour")
     if cues["other_hand"] > 0.1:
         out.append("it overlaps another hand")
@@ -83,22 +88,32 @@ def object_confidence(
     min_score: float,
     click_margin: float | None = None,
     box_agreement: int | None = None,
+    point_skin: float | None = None,
 ) -> MaskConfidence:
     """Confidence of the held-object mask (see the module docstring). ``click_margin``: the
     score margin of a single click's chosen candidate over another region
     (:func:`easyhoi.perception.click.click_margin`), or None; ``box_agreement``: how many of
     an object box's other candidates reach the chosen outline
-    (:func:`easyhoi.perception.prompted.prompted_object`), or None."""
+    (:func:`easyhoi.perception.prompted.prompted_object`), or None; ``point_skin``: the
+    largest share of skin-coloured pixels around an object point
+    (:func:`easyhoi.perception.click.point_skin`), or None without object points."""
     if hyp is None or best is None or not has_object:
         return MaskConfidence(0.0, ("no region scored as a held object; point at it",))
     cues = dict(zip(CUES, hyp.cues[best], strict=True))
     reasons = weak_cues(cues)
     s = hyp.strength(best)
     if prompted:
-        z = 2.5 - 3.0 * cues["skin"]
+        # skin colour beyond what the user pointed at: a point on a skin-coloured object (a beige
+        # cup, cardboard) says that colour is the object's, so only the excess is doubtful
+        at = 0.0 if point_skin is None else float(point_skin)
+        skin = max(0.0, cues["skin"] - at)
+        z = 2.5 - 3.0 * skin
         if box_agreement is None:  # a box says how large the object is; points do not
             z -= 2.0 * max(0.0, np.log(max(cues["area"], 1e-6) / 6.0))
-        reasons = [r for r in reasons if "skin" in r or ("size" in r and box_agreement is None)]
+        reasons = [r for r in reasons if "size" in r and box_agreement is None]
+        if skin > SKIN_REASON:
+            where = f", where the point has {at:.0%}" if point_skin is not None else ""
+            reasons.insert(0, f"{cues['skin']:.0%} of it has the hand's skin colour{where}")
         if box_agreement is None and cues["sides"] >= 4:
             # the frame reaches at least 3 palm lengths beyond the points: a region that runs
             # out of it on every side has no outline in it, as a surface behind the hand
