@@ -202,3 +202,31 @@ def test_a_clicked_skin_coloured_object_is_no_doubt_but_skin_beyond_the_click_is
     )
     assert iou(seg.object_mask, obj) > 0.8
     assert not any("skin colour" in r for r in seg.confidence["object"].reasons)
+
+
+def test_a_point_mask_much_smaller_than_the_hand_is_unsure():
+    from easyhoi.perception.held_object import CUES
+    from easyhoi.perception.seg_confidence import CLICK_MARGIN_PENALTY, SMALL_POINT_MASK
+
+    yy, xx = np.mgrid[0:S, 0:S]
+    obj = ((xx - 190) ** 2) / 30**2 + ((yy - 60) ** 2) / 22**2 < 1
+    img, hand = scene_of([(obj, RED)])
+    cues = scene_cues(img, hand)
+    whole = mask_hypothesis(obj, cues)
+    part = mask_hypothesis(obj & (np.abs(xx - 190) < 5) & (np.abs(yy - 60) < 5), cues)
+    a_whole, a_part = (float(h.cues[0][CUES.index("area")]) for h in (whole, part))
+    assert a_part < SMALL_POINT_MASK <= a_whole
+    ok = object_confidence(whole, 0, None, True, True, 1.0, point_skin=0.0)
+    small = object_confidence(part, 0, None, True, True, 1.0, point_skin=0.0)
+    assert not ok.low and not ok.reasons
+    assert small.low and "small next to the hand" in small.reasons[-1]
+    assert not any("unusual" in r for r in small.reasons)  # one reason for the size, not two
+    # the same penalty as an unsure click, on the prompted logit (no skin colour here)
+    skin = float(part.cues[0][CUES.index("skin")])
+    z = 2.5 - 3.0 * skin - CLICK_MARGIN_PENALTY
+    assert abs(small.score - 1.0 / (1.0 + np.exp(-z))) < 1e-9
+    # a box says how large the object is, and a region picked from masks.png has no point
+    boxed = object_confidence(part, 0, None, True, True, 1.0, box_agreement=BOX_AGREEMENT,
+                              point_skin=0.0)  # fmt: skip
+    picked = object_confidence(part, 0, None, True, True, 1.0)
+    assert not any("small next to" in r for r in boxed.reasons + picked.reasons)

@@ -10,10 +10,11 @@ a grasped object lies (pressed by several fingers and the thumb, filling the gra
 background running out of the picture, with a closed outline); a small margin means another
 region is almost as good a held object, and the choice between them is a guess. Prompted: the
 user said where the object is, so only a region that grew far beyond the prompt (larger than
-held objects are, or running out of the frame around the points on all four sides) or has more
-of the hand's skin colour than what the points are on (a mask grown into the hand's rim, the arm
-or a face; a point on a beige cup says that colour is the object's) lowers the score, and, for a
-single object point, another outline around the point that
+held objects are, or running out of the frame around the points on all four sides), much smaller
+than the hand (with object points: a part of the object, a label or a cap, is what a point's
+outline often stops at) or has more of the hand's skin colour than what the points are on (a mask
+grown into the hand's rim, the arm or a face; a point on a beige cup says that colour is the
+object's) lowers the score, and, for a single object point, another outline around the point that
 scores almost as high (the click's choice between them is then a guess, which a second point
 on what the mask misses, or a background point on what it takes in, settles). An object box
 says how large the object is, so there size does not count; what does is whether the box's
@@ -52,6 +53,12 @@ BOX_AGREEMENT = 2
 #: A mask with more than this share of the hand's skin colour is named as doubtful (in a prompted
 #: mask: more than the share around the object points).
 SKIN_REASON = 0.3
+#: An object point's mask smaller than this share of the hand's area is unsure (the same
+#: penalty as an unsure click): the outline grown from a point stops at the strongest edge
+#: around it, which inside an object is often a part's (a label, a cap, a pen's tip, a
+#: microphone's head), and held objects are mostly about as large as the hand or larger; a
+#: small whole object (a pen) is a thin outline that a pixel or two moves.
+SMALL_POINT_MASK = 0.25
 
 
 def _sigmoid(z: float) -> float:
@@ -114,6 +121,13 @@ def object_confidence(
         if skin > SKIN_REASON:
             where = f", where the point has {at:.0%}" if point_skin is not None else ""
             reasons.insert(0, f"{cues['skin']:.0%} of it has the hand's skin colour{where}")
+        if point_skin is not None and box_agreement is None and cues["area"] < SMALL_POINT_MASK:
+            z -= CLICK_MARGIN_PENALTY
+            reasons = [r for r in reasons if "size" not in r]
+            reasons.append(
+                f"it is small next to the hand ({cues['area']:.2f} x its area), as a part of an "
+                "object often is: check masks.png"
+            )
         if box_agreement is None and cues["sides"] >= 4:
             # the frame reaches at least 3 palm lengths beyond the points: a region that runs
             # out of it on every side has no outline in it, as a surface behind the hand
