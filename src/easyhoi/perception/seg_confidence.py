@@ -125,8 +125,8 @@ def object_confidence(
             z -= CLICK_MARGIN_PENALTY
             reasons = [r for r in reasons if "size" not in r]
             reasons.append(
-                f"it is small next to the hand ({cues['area']:.2f} x its area), as a part of an "
-                "object often is: check masks.png"
+                f"it is small next to the hand ({cues['area']:.2f} x the hand's area), as a "
+                "part of an object often is: check masks.png"
             )
         if box_agreement is None and cues["sides"] >= 4:
             # the frame reaches at least 3 palm lengths beyond the points: a region that runs
