@@ -331,6 +331,8 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool, choices: bool = F
         _, sp, _, _ = segment_hands(rgb, hands, segmenter, prompts=p)
         row["seconds_point"] = time.perf_counter() - t1
         row["iou_point"] = iou(sp.object_mask if sp is not None else None, ref["object"])
+        conf_point = sp.confidence.get("object") if sp is not None else None
+        row["low_point"] = bool(conf_point is None or conf_point.low)
         row["iou_box"], row["low_box"] = box_run(rgb, hands, segmenter, ref["object"])
     return row
 
@@ -509,6 +511,9 @@ def summary(rows: list[dict]) -> dict:
         "right_flagged_low": float(np.mean([r["low"] for r in right])) if right else 0.0,
         "point_iou_ge_0.5": float(np.mean([r["iou_point"] >= 0.5 for r in pts])) if pts else 0.0,
         "point_mean_iou": float(np.mean([r["iou_point"] for r in pts])) if pts else 0.0,
+        # the one-point masks with IoU < 0.5 / >= 0.5 whose object confidence is low (warned)
+        "point_wrong_flagged_low": _share_low(pts, lambda r: r["iou_point"] < 0.5),
+        "point_right_flagged_low": _share_low(pts, lambda r: r["iou_point"] >= 0.5),
         "box_iou_ge_0.5": float(np.mean([r["iou_box"] >= 0.5 for r in pts])) if pts else 0.0,
         "box_mean_iou": float(np.mean([r["iou_box"] for r in pts])) if pts else 0.0,
         # the box masks with IoU < 0.5 / >= 0.5 whose object confidence is low (warned)
