@@ -279,6 +279,13 @@ def best_hypothesis_iou(rgb, hands, segmenter, ref_obj) -> float:
     return best
 
 
+def object_low(seg) -> bool:
+    """Whether a segmentation's object mask would be warned about: its confidence is low, or
+    there is no segmentation (no object) at all."""
+    conf = seg.confidence.get("object") if seg is not None else None
+    return bool(conf is None or conf.low)
+
+
 def run_photo(rgb, ref, detector, segmenter, with_point: bool, choices: bool = False) -> dict:
     from easyhoi.perception.chain import segment_hands
     from easyhoi.perception.prompts import Prompts
@@ -331,8 +338,7 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool, choices: bool = F
         _, sp, _, _ = segment_hands(rgb, hands, segmenter, prompts=p)
         row["seconds_point"] = time.perf_counter() - t1
         row["iou_point"] = iou(sp.object_mask if sp is not None else None, ref["object"])
-        conf_point = sp.confidence.get("object") if sp is not None else None
-        row["low_point"] = bool(conf_point is None or conf_point.low)
+        row["low_point"] = object_low(sp)
         row["iou_box"], row["low_box"] = box_run(rgb, hands, segmenter, ref["object"])
     return row
 
@@ -348,8 +354,7 @@ def box_run(rgb, hands, segmenter, ref_obj) -> tuple[float, bool]:
 
     box = object_box(ref_obj, BOX_GROW)
     _, sb, _, _ = segment_hands(rgb, hands, segmenter, prompts=Prompts(object_box=box))
-    conf = sb.confidence.get("object") if sb is not None else None
-    return iou(sb.object_mask if sb is not None else None, ref_obj), bool(conf is None or conf.low)
+    return iou(sb.object_mask if sb is not None else None, ref_obj), object_low(sb)
 
 
 def click_ceiling(rgb, hands, segmenter, prompts, ref_obj) -> float | None:
@@ -389,8 +394,7 @@ def run_click(rgb, ref, detector, segmenter, choices: bool = False) -> dict:
         row["cpu_seconds_point"] = time.process_time() - c0
         m1 = sp.object_mask if sp is not None else None
         row["iou_point"] = iou(m1, ref["object"])
-        conf = sp.confidence.get("object") if sp is not None else None
-        row["low_point"] = bool(conf is None or conf.low)
+        row["low_point"] = object_low(sp)
         row["ceiling_point"] = click_ceiling(rgb, hands, segmenter, p, ref["object"])
         if choices and sp is not None:
             row["iou_point_choices"] = [row["iou_point"]] + [
