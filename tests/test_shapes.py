@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from easyhoi.perception.objects import SilhouetteReconstructor
-from easyhoi.perception.shapes import common, cuboid, inflation, superquadric
+from easyhoi.perception.shapes import common, cuboid, handled, inflation, superquadric
 from easyhoi.perception.shapes.hand_cues import (
     PAD_M,
     PINCH_CONFIDENCE,
@@ -41,6 +41,47 @@ def test_revolution_recovers_a_vase():
     check_canonical(mesh)
     assert iou(silhouette(mesh, m.shape), m) > 0.95
     assert extents_px(mesh)[2] == pytest.approx(2 * rmax, rel=0.04)
+
+
+def mug(handle: bool = True) -> np.ndarray:
+    """A mug seen from its side: a body 60 px wide and 100 px tall and, unless ``handle`` is
+    False, a ring-shaped handle 12 px thick standing off its right side."""
+    m = np.zeros((200, 200), np.uint8)
+    cv2.rectangle(m, (60, 50), (119, 149), 1, -1)
+    if handle:
+        cv2.ellipse(m, (120, 100), (28, 32), 0, -90, 90, 1, 12)
+    return m.astype(bool)
+
+
+def test_handled_recovers_a_mug_with_a_round_body():
+    m = mug()
+    mesh = SilhouetteReconstructor().reconstruct(None, m)
+    assert mesh.metadata["easyhoi"]["method"] == "handled"
+    check_canonical(mesh)
+    assert iou(silhouette(mesh, m.shape), m) > 0.95
+    # the body is round: as deep along the view as it is wide (the handle is thinner)
+    assert extents_px(mesh)[2] == pytest.approx(60, rel=0.05)
+    info = mesh.metadata["easyhoi"]["shape"]["scores"]["handled"]
+    share = float((m & ~mug(handle=False)).sum()) / m.sum()
+    assert info["handle_share"] == pytest.approx(share, abs=0.03)
+
+
+def test_handled_needs_a_handle_on_one_side():
+    # no handle: the plain surface of revolution, and the family does not apply
+    m = mug(handle=False)
+    assert SilhouetteReconstructor().reconstruct(None, m).metadata["easyhoi"]["method"] == (
+        "revolution"
+    )
+    assert handled.fit(common.work_frame(m)) is None
+    # asked for by name, it gives the plain surface of revolution
+    alone = handled.fit(common.work_frame(m), alone=True)
+    assert alone.name == "handled" and alone.info["handle_share"] == 0.0
+    assert alone.iou > 0.97
+    # parts standing off both sides of the body are not a handle
+    both = mug().view(np.uint8).copy()
+    cv2.circle(both, (52, 130), 14, 1, -1)
+    h = handled.fit(common.work_frame(both.astype(bool)))
+    assert h is None or abs(h.info["axis"][0]) > 0.9  # not about the body's (vertical) axis
 
 
 def box_scene(half=(60, 35, 20), euler=(30, 40, 10), shape=(220, 260)):

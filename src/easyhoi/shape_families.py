@@ -5,4 +5,12 @@ The command line offers them (``--object-shape``) and the configuration checks t
 the same order, as a test checks.
 """
 
-OBJECT_SHAPES = ("revolution", "superquadric", "tube", "cuboid", "slab", "inflation")
+OBJECT_SHAPES = (
+    "revolution",
+    "superquadric",
+    "tube",
+    "cuboid",
+    "slab",
+    "inflation",
+    "handled",
+)

@@ -2,10 +2,10 @@
 
 :class:`SilhouetteReconstructor` (registered as ``("object", "silhouette")``) is the offline
 stand-in for an image-to-3D model (InstantMesh, Tripo3D). It fits shape hypotheses to the amodal
-outline (:mod:`easyhoi.perception.shapes`: surface of revolution, slab, cuboid, superquadric,
-generalised cylinder, inflation) and keeps the one the evidence favours: silhouette fit, straight
-internal edges, and the thickness the holding hand's grip allows. With the hand's keypoints the
-object also gets a metric size (the hand's size is known).
+outline (:mod:`easyhoi.perception.shapes`: surface of revolution, also with a handle, slab,
+cuboid, superquadric, generalised cylinder, inflation) and keeps the one the evidence favours:
+silhouette fit, straight internal edges, and the thickness the holding hand's grip allows. With
+the hand's keypoints the object also gets a metric size (the hand's size is known).
 
 Output frame (as InstantMesh's): centred at the bounding-box centre, x right and y down as in the
 image, z away from the camera (right-handed), unit max extent. ``mesh.metadata["easyhoi"]``

@@ -2,7 +2,8 @@
 
 Families (one module each): :mod:`.revolution` (bottles, cans, cups), :mod:`.slab` (phones,
 books, boards), :mod:`.cuboid` (boxes), :mod:`.superquadric` (balls, fruit, mice, soap),
-:mod:`.tube` (pens, tools, bananas) and :mod:`.inflation` (anything else). Each is fitted to
+:mod:`.tube` (pens, tools, bananas), :mod:`.handled` (mugs, jugs: a round body with a handle)
+and :mod:`.inflation` (anything else). Each is fitted to
 the amodal outline in a working frame (:mod:`.common`) and scored::
 
     score = IoU_w - complexity + edge_bonus - depth_penalty
@@ -50,7 +51,15 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from easyhoi.perception.shapes import cuboid, inflation, revolution, slab, superquadric, tube
+from easyhoi.perception.shapes import (
+    cuboid,
+    handled,
+    inflation,
+    revolution,
+    slab,
+    superquadric,
+    tube,
+)
 from easyhoi.perception.shapes.common import (
     Hypothesis,
     WorkFrame,
@@ -66,7 +75,8 @@ from easyhoi.perception.shapes.hand_cues import HandCues, hand_cues
 
 #: Complexity penalty per family (see module docs). Without the grip's flat verdict the slab's
 #: thickness is a guess, and its penalty exceeds the inflation's by 0.04 of IoU, more than the
-#: two free-outline families differ by on most outlines (module docs).
+#: two free-outline families differ by on most outlines (module docs). The handled surface of
+#: revolution pays for its second part (:mod:`.handled`).
 COMPLEXITY = {
     "revolution": 0.0,
     "superquadric": 0.005,
@@ -74,6 +84,7 @@ COMPLEXITY = {
     "cuboid": 0.06,
     "slab": 0.12,
     "inflation": 0.08,
+    "handled": 0.03,
 }
 #: Slab complexity when the grip says the object is flat.
 FLAT_SLAB_COMPLEXITY = 0.02
@@ -169,6 +180,8 @@ def fit_shape(
             h = slab.fit(wf, thickness=t_obs if flat else None, min_thickness=t_obs)
         elif name == "inflation":
             h = inflation.fit(wf)
+        elif name == "handled":
+            h = handled.fit(wf, alone=len(families) == 1)
         else:
             raise ValueError(f"unknown shape family {name!r}")
         if h is not None:

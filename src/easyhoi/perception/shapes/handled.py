@@ -1,0 +1,135 @@
+"""Surface of revolution with a handle: mugs, jugs, cups with a handle, spray bottles.
+
+Many held objects are a round body with one part standing off its side: a mug's handle, a
+jug's, a spray bottle's trigger. The outline is then mirror-symmetric about the body's axis
+except for that part, and the surface of revolution, capped by its outline's mirror symmetry,
+loses to the free-outline fallback (a pillow) although its body is what the object mostly is.
+
+The axis is the one :func:`.revolution.symmetry` searches (the most mirror-symmetric one; the
+handle lowers every axis's symmetry alike, the body's least). The *core* is the mask where its
+mirror image about that axis is in the mask too (or hidden: the hand or the photo's edge says
+nothing there); the rest is the *handle*. The family applies only when the handle is a part, on
+one side of the axis, and seen:
+
+* it is between :data:`HANDLE_SHARE` of the outline (smaller is the outline's raggedness, larger
+  is not a handle but an outline that is not round: a banana, a shoe);
+* at least :data:`ONE_SIDE` of it lies on one side of the axis (a handle stands off one side; an
+  outline that differs from its mirror image on both sides is not a round body), and as much
+  beside the body, not within :data:`END_MARGIN` of its length from either end (a corner of a box
+  seen at an angle differs from its mirror image at the end of the axis);
+* it is one piece (at least :data:`ONE_PIECE` of it connected: a mask's ragged edge differs
+  from its mirror image in many slivers);
+* its seen part alone is at least the smallest share above (the amodal completion behind the
+  hand draws what it does not see, and a bulge it draws is no evidence of a handle).
+
+The body is the core's profile revolved (:func:`.revolution.profile`), the handle a rounded
+slab of its own outline as thick as its widest inscribed disk (a handle's cross-section is about
+as deep as it is wide) on the body's mid-plane (a handle sticks out sideways, in the plane of the
+axis). Both are one height field about the mid-plane (``r(s)^2 - t^2`` on the body, the slab's on
+the handle, the larger where they meet), closed by marching cubes as the inflation is. Its
+evidence is capped by the core's share of the outline explained by the body (the profile IoU on
+the core) like the revolution's by its symmetry.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from easyhoi.perception.shapes import revolution
+from easyhoi.perception.shapes.common import (
+    Hypothesis,
+    WorkFrame,
+    fit_iou,
+    principal_axes,
+    rasterize,
+)
+from easyhoi.perception.shapes.inflation import implicit_slab_mesh
+from easyhoi.perception.shapes.slab import slab_h2
+
+#: Share of the outline the handle may take (module docs).
+HANDLE_SHARE = (0.04, 0.3)
+#: Least share of the handle on its side of the axis.
+ONE_SIDE = 0.9
+#: A handle stands off the body's side: this share of the body's length at each end is not
+#: beside it (where a corner of a tilted box differs from its mirror image).
+END_MARGIN = 0.1
+#: Least share of the handle in its largest connected piece.
+ONE_PIECE = 0.8
+#: Profile samples along the axis and vertices around it.
+N_RINGS = 48
+N_SEGMENTS = 40
+
+
+def split(wf: WorkFrame, c: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(core, handle): the mask where its mirror image about the axis through ``c`` along ``a``
+    is in the mask or hidden, and the rest, cleared of slivers (an opening of one pixel)."""
+    hidden = wf.weight <= 0
+    mirror = revolution.reflect_mask(wf.mask | hidden, c, a).astype(bool)
+    core = wf.mask & mirror
+    handle = ndimage.binary_opening(wf.mask & ~core, iterations=1)
+    return wf.mask & ~handle, handle
+
+
+def fit(wf: WorkFrame, max_faces: int = 6000, alone: bool = False) -> Hypothesis | None:
+    """The handled hypothesis of the working frame's mask, or None where the outline is not a
+    round body with one handle about either searched axis (module docs). ``alone`` (the family
+    was asked for by name): such an outline gives the plain surface of revolution instead, as a
+    handle hidden behind the hand or the body leaves."""
+    c0, axes = principal_axes(wf.mask)
+    pts = _centred(wf.mask, c0)
+    best = None
+    for a0 in axes:
+        across = float(np.abs(pts @ np.array([-a0[1], a0[0]])).max())
+        _, c, a = revolution.mirror_axis(wf.mask, wf.weight, c0, a0, across)
+        h = _fit_axis(wf, c, a, max_faces)
+        if h is not None and (best is None or h.iou > best.iou):
+            best = h
+    if best is None and alone:
+        best = revolution.fit(wf)
+        best.name = "handled"
+        best.info["handle_share"] = 0.0
+    return best
+
+
+def _centred(mask: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(N, 2) pixel centres (u, v) of ``mask`` relative to ``c``."""
+    rows, cols = np.nonzero(mask)
+    return np.stack([cols + 0.5, rows + 0.5], axis=1) - c
+
+
+def _fit_axis(wf: WorkFrame, c, a, max_faces: int) -> Hypothesis | None:
+    """The handled hypothesis about the axis through ``c`` along ``a``, or None where the rest
+    of the outline beside its mirror-symmetric core is not a handle (module docs)."""
+    core, handle = split(wf, c, a)
+    area = float(wf.mask.sum())
+    share = float(handle.sum()) / area if area else 0.0
+    if not HANDLE_SHARE[0] <= share <= HANDLE_SHARE[1] or not core.any():
+        return None
+    p = _centred(handle, c)
+    side = p @ np.array([-a[1], a[0]])
+    if max((side > 0).mean(), (side < 0).mean()) < ONE_SIDE:
+        return None
+    s_core = _centred(core, c) @ a
+    lo, hi = float(s_core.min()), float(s_core.max())
+    margin = END_MARGIN * (hi - lo)
+    along = p @ a
+    if ((along > lo + margin) & (along < hi - margin)).mean() < ONE_SIDE:
+        return None
+    if float((handle & wf.visible).sum()) / area < HANDLE_SHARE[0]:
+        return None
+    labels, n = ndimage.label(handle, structure=np.ones((3, 3)))
+    if n > 1 and np.bincount(labels.ravel())[1:].max() < ONE_PIECE * float(handle.sum()):
+        return None
+    s, r, _ = revolution.profile(core, c, a, N_RINGS)
+    bv, bf = revolution.tilted_revolution_mesh(c, a, s, r, 0.0, N_SEGMENTS)
+    width = 2.0 * float(ndimage.distance_transform_edt(handle).max())
+    hv, hf = implicit_slab_mesh(handle, slab_h2(handle, width), max_faces=max_faces // 2)
+    verts = np.concatenate([bv, hv])
+    faces = np.concatenate([bf, hf + len(bv)])
+    body = revolution.profile_mask(wf.mask.shape, c, a, np.array([-a[1], a[0]]), s, r)
+    iou = fit_iou(rasterize(verts[:, :2], faces, wf.mask.shape), wf)
+    body_iou = float((body & core).sum()) / float((body | core).sum())
+    info = dict(handle_share=round(share, 4), body_iou=round(body_iou, 4),
+                axis=[round(float(x), 6) for x in a])  # fmt: skip
+    return Hypothesis("handled", verts, faces, min(iou, body_iou), True, info=info)
