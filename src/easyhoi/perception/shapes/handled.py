@@ -5,10 +5,11 @@ jug's, a spray bottle's trigger. The outline is then mirror-symmetric about the 
 except for that part, and the surface of revolution, capped by its outline's mirror symmetry,
 loses to the free-outline fallback (a pillow) although its body is what the object mostly is.
 
-The axis is the one :func:`.revolution.symmetry` searches (the most mirror-symmetric one; the
-handle lowers every axis's symmetry alike, the body's least). The *core* is the mask where its
-mirror image about that axis is in the mask too (or hidden: the hand or the photo's edge says
-nothing there); the rest is the *handle*. The family applies only when the handle is a part, on
+About each principal axis the most mirror-symmetric axis nearby is searched as the surface of
+revolution searches it (:func:`.revolution.mirror_axis`; the handle lowers every axis's symmetry
+alike, the body's least). The *core* is the mask where its mirror image about that axis is in the
+mask too (or hidden: the hand or the photo's edge says nothing there); the rest is the
+*handle*. The family applies only when the handle is a part, on
 one side of the axis, and seen:
 
 * it is between :data:`HANDLE_SHARE` of the outline (a mug's thin handle at the working frame's
@@ -26,10 +27,10 @@ one side of the axis, and seen:
 The body is the core's profile revolved (:func:`.revolution.profile`), the handle a rounded
 slab of its own outline as thick as its widest inscribed disk (a handle's cross-section is about
 as deep as it is wide) on the body's mid-plane (a handle sticks out sideways, in the plane of the
-axis). Both are one height field about the mid-plane (``r(s)^2 - t^2`` on the body, the slab's on
-the handle, the larger where they meet), closed by marching cubes as the inflation is. Its
-evidence is capped by the core's share of the outline explained by the body (the profile IoU on
-the core) like the revolution's by its symmetry.
+axis). They are two closed surfaces that meet where the handle leaves the body's outline (the
+handle lies outside the body's silhouette, so they do not overlap). The evidence is the lesser of
+the silhouette fit and the IoU of the revolved body's silhouette with the core, as the
+revolution's is capped by its symmetry; of the two axes the one with the better evidence wins.
 """
 
 from __future__ import annotations
