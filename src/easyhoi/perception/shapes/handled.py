@@ -13,8 +13,8 @@ mask too (or hidden: the hand or the photo's edge says nothing there); the rest 
 one side of the axis, and seen:
 
 * it is between :data:`HANDLE_SHARE` of the outline (a mug's thin handle at the working frame's
-  96 px can take as little as 3 %; larger is not a handle but an outline that is not round: a banana, a
-  shoe), counted after the pieces under :data:`SLIVER` of it are dropped;
+  96 px can take as little as 3 %; larger is not a handle but an outline that is not round: a
+  banana, a shoe), counted after the pieces under :data:`SLIVER` of it are dropped;
 * at least :data:`ONE_SIDE` of it lies on one side of the axis (a handle stands off one side; an
   outline that differs from its mirror image on both sides is not a round body), and as much
   beside the body, not within :data:`END_MARGIN` of its length from either end (a corner of a box
