@@ -167,9 +167,12 @@ def fit_shape(
         grip = _nearest_inside(wf.mask, wf.to_work(cues.grip_px))
     flat = t_obs is not None and conf >= FLAT_CONFIDENCE and t_obs < FLAT_RATIO * width
     hyps: list[Hypothesis] = []
+    round_axes = None  # the axis search the two round families share, done once
     for name in families:
+        if name in ("revolution", "handled") and round_axes is None:
+            round_axes = revolution.searched_axes(wf.mask, wf.weight)
         if name == "revolution":
-            h = revolution.fit(wf)
+            h = revolution.fit(wf, axes=round_axes)
         elif name == "superquadric":
             h = superquadric.fit(wf)
         elif name == "tube":
@@ -181,7 +184,7 @@ def fit_shape(
         elif name == "inflation":
             h = inflation.fit(wf)
         elif name == "handled":
-            h = handled.fit(wf, alone=len(families) == 1)
+            h = handled.fit(wf, alone=len(families) == 1, axes=round_axes)
         else:
             raise ValueError(f"unknown shape family {name!r}")
         if h is not None:

@@ -39,13 +39,7 @@ import numpy as np
 from scipy import ndimage
 
 from easyhoi.perception.shapes import revolution
-from easyhoi.perception.shapes.common import (
-    Hypothesis,
-    WorkFrame,
-    fit_iou,
-    principal_axes,
-    rasterize,
-)
+from easyhoi.perception.shapes.common import Hypothesis, WorkFrame, fit_iou, rasterize
 from easyhoi.perception.shapes.inflation import implicit_slab_mesh
 from easyhoi.perception.shapes.slab import slab_h2
 
@@ -81,22 +75,23 @@ def split(wf: WorkFrame, c: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.n
     return wf.mask & ~handle, handle
 
 
-def fit(wf: WorkFrame, max_faces: int = 6000, alone: bool = False) -> Hypothesis | None:
+def fit(
+    wf: WorkFrame, max_faces: int = 6000, alone: bool = False, axes: list[tuple] | None = None
+) -> Hypothesis | None:
     """The handled hypothesis of the working frame's mask, or None where the outline is not a
     round body with one handle about either searched axis (module docs). ``alone`` (the family
     was asked for by name): such an outline gives the plain surface of revolution instead, as a
-    handle hidden behind the hand or the body leaves."""
-    c0, axes = principal_axes(wf.mask)
-    pts = _centred(wf.mask, c0)
+    handle hidden behind the hand or the body leaves. ``axes``: the surface of revolution's
+    :func:`.revolution.searched_axes` of the mask and its weight when already found."""
+    if axes is None:
+        axes = revolution.searched_axes(wf.mask, wf.weight)
     best = None
-    for a0 in axes:
-        across = float(np.abs(pts @ np.array([-a0[1], a0[0]])).max())
-        _, c, a = revolution.mirror_axis(wf.mask, wf.weight, c0, a0, across)
+    for _, _, c, a in axes:
         h = _fit_axis(wf, c, a, max_faces)
         if h is not None and (best is None or h.iou > best.iou):
             best = h
     if best is None and alone:
-        best = revolution.fit(wf)
+        best = revolution.fit(wf, axes=axes)
         best.name = "handled"
         best.info["handle_share"] = 0.0
     return best
@@ -116,8 +111,9 @@ def _fit_axis(wf: WorkFrame, c, a, max_faces: int) -> Hypothesis | None:
     share = float(handle.sum()) / area if area else 0.0
     if not HANDLE_SHARE[0] <= share <= HANDLE_SHARE[1] or not core.any():
         return None
+    normal = np.array([-a[1], a[0]])
     p = _centred(handle, c)
-    side = p @ np.array([-a[1], a[0]])
+    side = p @ normal
     if max((side > 0).mean(), (side < 0).mean()) < ONE_SIDE:
         return None
     s_core = _centred(core, c) @ a
@@ -137,7 +133,7 @@ def _fit_axis(wf: WorkFrame, c, a, max_faces: int) -> Hypothesis | None:
     hv, hf = implicit_slab_mesh(handle, slab_h2(handle, width), max_faces=max_faces // 2)
     verts = np.concatenate([bv, hv])
     faces = np.concatenate([bf, hf + len(bv)])
-    body = revolution.profile_mask(wf.mask.shape, c, a, np.array([-a[1], a[0]]), s, r)
+    body = revolution.profile_mask(wf.mask.shape, c, a, normal, s, r)
     iou = fit_iou(rasterize(verts[:, :2], faces, wf.mask.shape), wf)
     body_iou = float((body & core).sum()) / float((body | core).sum())
     info = dict(handle_share=round(share, 4), body_iou=round(body_iou, 4),

@@ -249,11 +249,28 @@ def mirror_axis(
     return (refl, *axis(d, f))
 
 
+def searched_axes(mask: np.ndarray, weight: np.ndarray | None = None) -> list[tuple]:
+    """For each principal axis of ``mask`` (major first): ``(c0, a0, c, a)``, the principal axis
+    (centroid, unit direction) and the most mirror-symmetric axis near it (:func:`mirror_axis`,
+    weighed by ``weight``; None: every pixel counts)."""
+    w = np.ones(mask.shape) if weight is None else weight
+    c0, axes = principal_axes(mask)
+    rows, cols = np.nonzero(mask)
+    pts = np.stack([cols + 0.5, rows + 0.5], axis=1) - c0
+    out = []
+    for a0 in axes:
+        n0 = np.array([-a0[1], a0[0]])
+        _, c, a = mirror_axis(mask, w, c0, a0, float(np.abs(pts @ n0).max()))
+        out.append((c0, a0, c, a))
+    return out
+
+
 def symmetry(
     mask: np.ndarray,
     n_rings: int = 64,
     weight: np.ndarray | None = None,
     evidence_weight: np.ndarray | None = None,
+    axes: list[tuple] | None = None,
 ) -> dict:
     """Best revolution axis of ``mask``: ``score`` = min(reflection IoU, profile IoU), ...
 
@@ -274,17 +291,12 @@ def symmetry(
     completed outline is stays evidence: counted as unknown there as well, nearly every held
     outline is symmetric enough that boxes seen face-on come out as cylinders
     (docs/object_shape.md). Between the axes kept near the two principal axes, ties within 0.02
-    (of the evidence) go to the major axis (a bottle revolves about its length).
+    (of the evidence) go to the major axis (a bottle revolves about its length). ``axes``:
+    :func:`searched_axes` of ``mask`` and ``weight`` when already found.
     """
-    w = np.ones(mask.shape) if weight is None else weight
     ev = np.ones(mask.shape) if evidence_weight is None else evidence_weight
-    c0, axes = principal_axes(mask)
-    rows, cols = np.nonzero(mask)
-    pts = np.stack([cols + 0.5, rows + 0.5], axis=1) - c0
     best = None
-    for a0 in axes:
-        n0 = np.array([-a0[1], a0[0]])
-        _, c, a = mirror_axis(mask, w, c0, a0, float(np.abs(pts @ n0).max()))
+    for c0, a0, c, a in searched_axes(mask, weight) if axes is None else axes:
         # the searched axis with the profile that knows the hidden pixels, and the principal
         # axis with the plain half-chord: whichever the outline as seen supports better
         cands = [_axis_evidence(mask, ev, c, a, profile(mask, c, a, n_rings, weight)),
@@ -403,10 +415,13 @@ def _gradient(wf: WorkFrame):
     return cv2.dilate(mag, np.ones((3, 3), np.uint8)), base, inner
 
 
-def fit(wf: WorkFrame, n_rings: int = 48, n_segments: int = 40) -> Hypothesis:
-    """The surface-of-revolution hypothesis of the working frame's mask (module docs: tilt)."""
+def fit(
+    wf: WorkFrame, n_rings: int = 48, n_segments: int = 40, axes: list[tuple] | None = None
+) -> Hypothesis:
+    """The surface-of-revolution hypothesis of the working frame's mask (module docs: tilt);
+    ``axes``: :func:`searched_axes` of its mask and weight when already found."""
     in_photo = None if wf.in_photo is None else wf.in_photo.astype(np.float64)
-    sym = symmetry(wf.mask, n_rings, wf.weight, in_photo)
+    sym = symmetry(wf.mask, n_rings, wf.weight, in_photo, axes)
     c, a, s, r = sym["center"], sym["axis"], sym["s"], sym["r"]
     verts, faces = tilted_revolution_mesh(c, a, s, r, 0.0, n_segments)
     iou = fit_iou(rasterize(verts[:, :2], faces, wf.mask.shape), wf)
