@@ -16,16 +16,19 @@ fitted hand's keypoints, as the chain calls it) twice on the same hand-free phot
 Per photo: the one-point mask's IoU with the reference and the winning family on each outline;
 the summary counts the families and the inflations (the fallback, a pillow of the outline) on
 each. The difference between the two columns is what perception's outline costs the shape step.
+A picture (``--png``, next to the JSON by default) shows the photos whose two families differ:
+the photo with both outlines, then each mesh seen from the photo's camera and from its right.
 
 Usage::
 
-    python benchmarks/bench_real_shapes.py [--only NAME] [--json OUT]
+    python benchmarks/bench_real_shapes.py [--only NAME] [--json OUT] [--png OUT]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections import Counter
 from pathlib import Path
@@ -39,6 +42,10 @@ from bench_perception import DATA, RESULTS, fit_to, iou, reference  # noqa: E402
 #: Pixels the hand mask is grown by before the hull completes the drawn outline behind it (the
 #: amodal step's own margin).
 MARGIN_PX = 2.0
+#: Outline colours of the picture: perception's one-point outline, the drawn one.
+PERCEPTION_RGB, DRAWN_RGB = (230, 60, 40), (40, 200, 80)
+#: Side of each rendered view of a mesh in the picture, pixels.
+VIEW_PX = 160
 
 
 def completed_reference(ref_object: np.ndarray, hand_mask: np.ndarray) -> np.ndarray:
@@ -53,8 +60,69 @@ def shape_family(mesh) -> str:
     return str((mesh.metadata.get("easyhoi") or {}).get("method"))
 
 
-def run_photo(path: Path, ref: dict, settings) -> dict:
-    """One photo: the chain with one object point, then the object step on both outlines."""
+def mesh_views(mesh, size: int = VIEW_PX) -> np.ndarray:
+    """(size, 2 size, 3) uint8: the mesh (canonical frame: u right, v down, z away from the
+    photo's camera) seen from the photo's camera and from its right, side by side."""
+    from easyhoi.structures import Camera
+    from easyhoi.viz import OBJECT_COLOR, SceneMesh, render_shaded
+
+    v, f = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
+    c = (v.min(0) + v.max(0)) / 2
+    half = math.radians(15.0)  # a 30 degree field of view, as the result's own views
+    dist = max(float(np.linalg.norm(v - c, axis=1).max()), 1e-9) / math.sin(half) * 1.08
+    focal = 0.5 * size / math.tan(half)
+    meshes = [SceneMesh(v, f, OBJECT_COLOR, "object")]
+    bg = np.array((250, 250, 250), np.uint8)
+    views = []
+    for direction in ((0.0, 0.0, -1.0), (1.0, 0.0, 0.0)):
+        cam = Camera.look_at(c + dist * np.array(direction), c, focal=focal, width=size,
+                             height=size)  # fmt: skip
+        views.append(render_shaded(meshes, cam, background=bg).image)
+    return np.hstack(views)
+
+
+def outlined_crop(rgb: np.ndarray, perceived: np.ndarray, drawn: np.ndarray) -> np.ndarray:
+    """The photo around both outlines (a sixth of their extent around them), scaled to
+    :data:`VIEW_PX` pixels high, both outlines drawn."""
+    import cv2
+
+    rows, cols = np.nonzero(perceived | drawn)
+    y0, y1, x0, x1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+    m = max(y1 - y0, x1 - x0) // 6 + 2
+    y0, x0 = max(0, y0 - m), max(0, x0 - m)
+    y1, x1 = min(rgb.shape[0], y1 + m), min(rgb.shape[1], x1 + m)
+    out = np.ascontiguousarray(rgb[y0:y1, x0:x1])
+    scale = VIEW_PX / out.shape[0]  # as tall as the mesh views beside it
+    size = (max(1, round(out.shape[1] * scale)), VIEW_PX)
+    out = cv2.resize(out, size, interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+    for mask, colour in ((perceived, PERCEPTION_RGB), (drawn, DRAWN_RGB)):
+        crop = np.ascontiguousarray(mask[y0:y1, x0:x1]).astype(np.uint8)
+        crop = cv2.resize(crop, size, interpolation=cv2.INTER_NEAREST)
+        contours, _ = cv2.findContours(crop, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        cv2.drawContours(out, contours, -1, colour, 2)
+    return out
+
+
+def picture(shown: list[tuple[dict, np.ndarray, object, object]]) -> np.ndarray:
+    """(H, W, 3) uint8: per photo, the outlined crop and the two meshes' views."""
+    from easyhoi.viz.compose import Panel, compose_grid
+
+    panels = []
+    for row, crop, m_perceived, m_drawn in shown:
+        panels += [
+            Panel(crop, f"{row['photo'][:30]}\nmask IoU {row['mask_iou']:.2f}"),
+            Panel(mesh_views(m_perceived), f"perception's outline:\n{row['perception']}"),
+            Panel(mesh_views(m_drawn), f"drawn outline:\n{row['drawn']}"),
+        ]
+    legend = [("perception's one-point outline", PERCEPTION_RGB), ("drawn outline", DRAWN_RGB)]
+    title = "The object step on perception's outline and on the drawn one (front, right)"
+    return compose_grid(panels, 3, 2 * VIEW_PX, title=title, legend=legend)
+
+
+def run_photo(path: Path, ref: dict, settings, keep: list | None = None) -> dict:
+    """One photo: the chain with one object point, then the object step on both outlines.
+    With ``keep``, a photo whose two families differ appends (row, outlined crop, mesh on
+    perception's outline, mesh on the drawn one) to it for the picture."""
     from types import SimpleNamespace
 
     from easyhoi.errors import EasyHOIError
@@ -77,14 +145,18 @@ def run_photo(path: Path, ref: dict, settings) -> dict:
                            keypoints2d=inp.meta["keypoints2d"], keypoints3d=None)  # fmt: skip
     img = inp.inpainted_image if inp.inpainted_image is not None else inp.image
 
-    def family(amodal, visible) -> str:
+    def mesh(amodal, visible):
         kw = hand_inputs(rec, hand, settings.hand_model, inp.hand_mask, visible)
-        return shape_family(rec.reconstruct(img, amodal, **kw))
+        return rec.reconstruct(img, amodal, **kw)
 
-    row["perception"] = family(inp.amodal_mask, inp.object_mask)
+    m_perceived = mesh(inp.amodal_mask, inp.object_mask)
+    row["perception"] = shape_family(m_perceived)
     row["same"] = row["perception"] == (inp.meta.get("object_shape") or {}).get("shape")
     drawn = ref["object"]
-    row["drawn"] = family(completed_reference(drawn, inp.hand_mask), drawn)
+    m_drawn = mesh(completed_reference(drawn, inp.hand_mask), drawn)
+    row["drawn"] = shape_family(m_drawn)
+    if keep is not None and row["perception"] != row["drawn"]:
+        keep.append((row, outlined_crop(rgb, inp.object_mask, drawn), m_perceived, m_drawn))
     return row
 
 
@@ -107,11 +179,13 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", default="", help="substring of the photo names to run")
     ap.add_argument("--json", type=Path, default=RESULTS / "bench_real_shapes.json")
+    ap.add_argument("--png", type=Path, default=None,
+                    help="the picture (default: the JSON's path with .png)")  # fmt: skip
     args = ap.parse_args(argv)
     from easyhoi.settings import resolve_run
 
     settings = resolve_run(None, seed=0)
-    rows = []
+    rows, shown = [], []
     for f in sorted((ROOT / "tests" / "data" / "perception_refs").glob("*.json")):
         if args.only not in f.stem:
             continue
@@ -121,7 +195,7 @@ def main(argv=None) -> int:
         if not (DATA / ref["image"]).is_file():
             print(f"skipped (photo not found): {ref['image']}", file=sys.stderr)
             continue
-        row = run_photo(DATA / ref["image"], ref, settings)
+        row = run_photo(DATA / ref["image"], ref, settings, keep=shown)
         rows.append(row)
         if "error" in row:
             print(f"{row['photo']:45s} {row['error']}", flush=True)
@@ -132,6 +206,12 @@ def main(argv=None) -> int:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(out, indent=1))
     print(json.dumps(out["summary"], indent=1))
+    if shown:
+        from easyhoi.viz.png import encode_png
+
+        png = args.png or args.json.with_suffix(".png")
+        png.write_bytes(encode_png(picture(shown), 6))
+        print(f"picture: {png}")
     return 0
 
 

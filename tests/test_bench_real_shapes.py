@@ -55,6 +55,34 @@ def test_summary_counts_families_inflations_and_differences():
     assert s["mask_iou_ge_0.5"] == pytest.approx(2 / 3)
 
 
+def test_mesh_views_show_a_flat_box_wide_from_the_front_and_thin_from_the_right():
+    bs = _script()
+    slab = trimesh.creation.box(extents=(1.0, 0.6, 0.1))  # u right, v down, z along the view
+    pic = bs.mesh_views(slab, size=96)
+    assert pic.shape == (96, 192, 3) and pic.dtype == np.uint8
+    covered = np.abs(pic.astype(int) - 250).sum(-1) > 30
+    front, right = covered[:, :96], covered[:, 96:]
+    # from the camera the slab is 1.0 wide; from the right only its 0.1 depth shows
+    assert np.ptp(np.nonzero(front.any(0))[0]) > 4 * np.ptp(np.nonzero(right.any(0))[0])
+    # both show its 0.6 height (the right view nearer to the slab's near edge: larger)
+    assert 0.6 < front.any(1).sum() / right.any(1).sum() <= 1.0
+
+
+def test_outlined_crop_frames_both_outlines_and_draws_them():
+    bs = _script()
+    rgb = np.full((200, 300, 3), 128, np.uint8)
+    perceived = np.zeros((200, 300), bool)
+    perceived[80:120, 100:140] = True
+    drawn = np.zeros((200, 300), bool)
+    drawn[70:130, 100:180] = True
+    out = bs.outlined_crop(rgb, perceived, drawn)
+    assert out.shape[0] == bs.VIEW_PX
+    # the crop holds both outlines with a margin: 80 x 60 px grown by a sixth each side
+    assert out.shape[1] / out.shape[0] == pytest.approx((80 + 2 * 15) / (60 + 2 * 15), abs=0.05)
+    for colour in (bs.PERCEPTION_RGB, bs.DRAWN_RGB):
+        assert (out == np.array(colour, np.uint8)).all(-1).any()
+
+
 def test_shape_family_reads_the_reconstructors_record():
     bs = _script()
     mesh = trimesh.creation.box()
