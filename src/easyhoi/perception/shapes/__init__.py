@@ -64,6 +64,7 @@ from easyhoi.perception.shapes.common import (
     Hypothesis,
     WorkFrame,
     front_depth,
+    pixel_centres,
     relief_agreement,
     scale_depth,
     signed_distance_2d,
@@ -126,8 +127,7 @@ def tilt_about_axis(verts: np.ndarray, mask: np.ndarray, axis, slope: float) -> 
 
 
 def _nearest_inside(mask: np.ndarray, p: np.ndarray) -> np.ndarray:
-    rows, cols = np.nonzero(mask)
-    pts = np.stack([cols + 0.5, rows + 0.5], axis=1)
+    pts = pixel_centres(mask)
     return pts[int(np.argmin(((pts - p) ** 2).sum(1)))]
 
 

@@ -219,10 +219,16 @@ def signed_distance_2d(mask: np.ndarray) -> np.ndarray:
     return np.where(mask, inside, -outside)
 
 
-def principal_axes(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Centroid (u, v) in pixel-centre coordinates and (2, 2) axes (rows, major first)."""
+def pixel_centres(mask: np.ndarray, origin: np.ndarray | None = None) -> np.ndarray:
+    """(N, 2) centres (u, v) of the True pixels of ``mask``, relative to ``origin`` if given."""
     rows, cols = np.nonzero(mask)
     pts = np.stack([cols + 0.5, rows + 0.5], axis=1)
+    return pts if origin is None else pts - origin
+
+
+def principal_axes(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroid (u, v) in pixel-centre coordinates and (2, 2) axes (rows, major first)."""
+    pts = pixel_centres(mask)
     c = pts.mean(axis=0)
     cov = np.cov((pts - c).T)
     _, vec = np.linalg.eigh(cov)

@@ -56,6 +56,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from easyhoi.perception.shapes.common import pixel_centres
+
 #: Keypoints count only this far inside the outline, as a fraction of its largest inscribed
 #: radius (module docs).
 INTERIOR_FRACTION = 0.3
@@ -218,8 +220,7 @@ def axis_slope(
         the outline's unit long axis (u, v) (None for an outline with no long axis) and the
         slope dz / ds along it (0 when the cue is absent).
     """
-    rows, cols = np.nonzero(object_mask)
-    pts = np.stack([cols + 0.5, rows + 0.5], axis=1)
+    pts = pixel_centres(object_mask)
     c = pts.mean(0)
     w, vec = np.linalg.eigh(np.cov((pts - c).T))
     if w[0] <= 0 or np.sqrt(w[1] / w[0]) < TILT_MIN_ASPECT:

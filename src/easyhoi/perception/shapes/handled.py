@@ -39,7 +39,13 @@ import numpy as np
 from scipy import ndimage
 
 from easyhoi.perception.shapes import revolution
-from easyhoi.perception.shapes.common import Hypothesis, WorkFrame, fit_iou, rasterize
+from easyhoi.perception.shapes.common import (
+    Hypothesis,
+    WorkFrame,
+    fit_iou,
+    pixel_centres,
+    rasterize,
+)
 from easyhoi.perception.shapes.inflation import implicit_slab_mesh
 from easyhoi.perception.shapes.slab import slab_h2
 
@@ -60,9 +66,10 @@ N_RINGS = 48
 N_SEGMENTS = 40
 
 
-def split(wf: WorkFrame, c: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(core, handle): the mask where its mirror image about the axis through ``c`` along ``a``
-    is in the mask or hidden, and the rest, without pieces under :data:`SLIVER` of the mask."""
+def split(wf: WorkFrame, c: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """(core, handle, largest): the mask where its mirror image about the axis through ``c``
+    along ``a`` is in the mask or hidden, the rest without pieces under :data:`SLIVER` of the
+    mask, and the share of that rest in its largest connected piece (1 when it is empty)."""
     hidden = wf.weight <= 0
     mirror = revolution.reflect_mask(wf.mask | hidden, c, a).astype(bool)
     core = wf.mask & mirror
@@ -72,7 +79,9 @@ def split(wf: WorkFrame, c: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.n
     keep = sizes >= SLIVER * float(wf.mask.sum())
     keep[0] = False
     handle = keep[labels]
-    return wf.mask & ~handle, handle
+    kept = sizes[keep]
+    largest = float(kept.max()) / float(kept.sum()) if kept.size else 1.0
+    return wf.mask & ~handle, handle, largest
 
 
 def fit(
@@ -97,26 +106,20 @@ def fit(
     return best
 
 
-def _centred(mask: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """(N, 2) pixel centres (u, v) of ``mask`` relative to ``c``."""
-    rows, cols = np.nonzero(mask)
-    return np.stack([cols + 0.5, rows + 0.5], axis=1) - c
-
-
 def _fit_axis(wf: WorkFrame, c, a, max_faces: int) -> Hypothesis | None:
     """The handled hypothesis about the axis through ``c`` along ``a``, or None where the rest
     of the outline beside its mirror-symmetric core is not a handle (module docs)."""
-    core, handle = split(wf, c, a)
+    core, handle, largest = split(wf, c, a)
     area = float(wf.mask.sum())
     share = float(handle.sum()) / area if area else 0.0
     if not HANDLE_SHARE[0] <= share <= HANDLE_SHARE[1] or not core.any():
         return None
     normal = np.array([-a[1], a[0]])
-    p = _centred(handle, c)
+    p = pixel_centres(handle, c)
     side = p @ normal
     if max((side > 0).mean(), (side < 0).mean()) < ONE_SIDE:
         return None
-    s_core = _centred(core, c) @ a
+    s_core = pixel_centres(core, c) @ a
     lo, hi = float(s_core.min()), float(s_core.max())
     margin = END_MARGIN * (hi - lo)
     along = p @ a
@@ -124,8 +127,7 @@ def _fit_axis(wf: WorkFrame, c, a, max_faces: int) -> Hypothesis | None:
         return None
     if float((handle & wf.visible).sum()) / area < HANDLE_SHARE[0]:
         return None
-    labels, n = ndimage.label(handle, structure=np.ones((3, 3)))
-    if n > 1 and np.bincount(labels.ravel())[1:].max() < ONE_PIECE * float(handle.sum()):
+    if largest < ONE_PIECE:
         return None
     s, r, _ = revolution.profile(core, c, a, N_RINGS)
     bv, bf = revolution.tilted_revolution_mesh(c, a, s, r, 0.0, N_SEGMENTS)

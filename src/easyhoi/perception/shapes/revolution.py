@@ -42,6 +42,7 @@ from easyhoi.perception.shapes.common import (
     Hypothesis,
     WorkFrame,
     fit_iou,
+    pixel_centres,
     principal_axes,
     rasterize,
     weighted_iou,
@@ -145,8 +146,7 @@ def profile(mask: np.ndarray, c: np.ndarray, a: np.ndarray, n_samples: int, weig
     Returns ``s`` (K,), ``r`` (K,) and the normal ``n`` (2,).
     """
     n = np.array([-a[1], a[0]])
-    rows, cols = np.nonzero(mask)
-    pts = np.stack([cols + 0.5, rows + 0.5], axis=1) - c
+    pts = pixel_centres(mask, c)
     s_all = pts @ a
     half = 0.5 * (abs(a[0]) + abs(a[1]))  # half pixel footprint along the axis
     s_lo, s_hi = s_all.min() - half, s_all.max() + half
@@ -255,8 +255,7 @@ def searched_axes(mask: np.ndarray, weight: np.ndarray | None = None) -> list[tu
     weighed by ``weight``; None: every pixel counts)."""
     w = np.ones(mask.shape) if weight is None else weight
     c0, axes = principal_axes(mask)
-    rows, cols = np.nonzero(mask)
-    pts = np.stack([cols + 0.5, rows + 0.5], axis=1) - c0
+    pts = pixel_centres(mask, c0)
     out = []
     for a0 in axes:
         n0 = np.array([-a0[1], a0[0]])

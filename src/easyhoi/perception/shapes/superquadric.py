@@ -20,6 +20,7 @@ from easyhoi.perception.shapes.common import (
     Hypothesis,
     WorkFrame,
     fit_iou,
+    pixel_centres,
     principal_axes,
     rasterize,
 )
@@ -47,8 +48,7 @@ def fit(wf: WorkFrame) -> Hypothesis:
     """The best-fitting superquadric of the working frame's mask (``c = b``)."""
     m = wf.mask
     c0, axes = principal_axes(m)
-    rows, cols = np.nonzero(m)
-    pts = np.stack([cols + 0.5, rows + 0.5], axis=1) - c0
+    pts = pixel_centres(m, c0)
     x, y = pts @ axes[0], pts @ axes[1]
     (x0, x1), (y0, y1) = np.percentile(x, [0.5, 99.5]), np.percentile(y, [0.5, 99.5])
     center = c0 + 0.5 * (x0 + x1) * axes[0] + 0.5 * (y0 + y1) * axes[1]
