@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from collections import Counter
 from pathlib import Path
@@ -65,20 +64,19 @@ def mesh_views(mesh, size: int = VIEW_PX) -> np.ndarray:
     photo's camera) seen from the photo's camera and from its right, side by side."""
     from easyhoi.structures import Camera
     from easyhoi.viz import OBJECT_COLOR, SceneMesh, render_shaded
+    from easyhoi.viz.views import view_cameras
 
     v, f = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
     c = (v.min(0) + v.max(0)) / 2
-    half = math.radians(15.0)  # a 30 degree field of view, as the result's own views
-    dist = max(float(np.linalg.norm(v - c, axis=1).max()), 1e-9) / math.sin(half) * 1.08
-    focal = 0.5 * size / math.tan(half)
+    radius = float(np.linalg.norm(v - c, axis=1).max())
+    # the canonical frame is the photo camera's: the result's own "front" and "side" views
+    photo = Camera.look_at((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    cams = view_cameras(c, radius, photo, size)
     meshes = [SceneMesh(v, f, OBJECT_COLOR, "object")]
     bg = np.array((250, 250, 250), np.uint8)
-    views = []
-    for direction in ((0.0, 0.0, -1.0), (1.0, 0.0, 0.0)):
-        cam = Camera.look_at(c + dist * np.array(direction), c, focal=focal, width=size,
-                             height=size)  # fmt: skip
-        views.append(render_shaded(meshes, cam, background=bg).image)
-    return np.hstack(views)
+    return np.hstack(
+        [render_shaded(meshes, cams[k], background=bg).image for k in ("front", "side")]
+    )
 
 
 def outlined_crop(rgb: np.ndarray, perceived: np.ndarray, drawn: np.ndarray) -> np.ndarray:
