@@ -250,3 +250,45 @@ def test_grounded_sam_gets_both_model_folders(monkeypatch, tmp_path):
     pc = _config_from_args(args).perception
     assert (pc.segmenter, pc.detector_dir, pc.amodal, pc.sam_dir) == (
         "grounded-sam", "/m/owl", "sam", "/m/sam")  # fmt: skip
+
+
+class TwoHandsOneUnsteady(TwoHands):
+    """The left skeleton is not found again in moved crops (confidence None); the right one is.
+    ``steady`` (hand side -> bool) says which are; it records which hands were measured."""
+
+    steady = {"left": False, "right": True}
+    measured: list = []
+
+    def keypoint_confidence(self, image, detection):
+        TwoHandsOneUnsteady.measured.append(detection.side)
+        return np.full(21, 0.8) if self.steady[detection.side] else None
+
+
+def test_an_object_prompt_passes_over_a_skeleton_the_detector_does_not_find_again(
+    config, monkeypatch
+):
+    monkeypatch.setitem(base._REGISTRY["hand"], "unsteady", TwoHandsOneUnsteady)
+    cfg = replace(config, perception=replace(config.perception, hand="unsteady"))
+    TwoHandsOneUnsteady.measured = []
+    near_left = Prompts(object_points=((60.0, 50.0),))  # 20 px from the left hand's circle
+    with pytest.raises(NoObjectError, match=r"\(for hand 0, right\)"):
+        perceive(IMAGE, cfg, prompts=near_left)
+    assert Recording.calls == [("right", near_left)]
+    assert TwoHandsOneUnsteady.measured == ["left", "right"]
+    # both unsteady: the nearest is kept (no hand is better founded than another)
+    Recording.calls, TwoHandsOneUnsteady.measured = [], []
+    monkeypatch.setattr(TwoHandsOneUnsteady, "steady", {"left": False, "right": False})
+    with pytest.raises(NoObjectError, match=r"\(for hand 0, left\)"):
+        perceive(IMAGE, cfg, prompts=near_left)
+    assert Recording.calls == [("left", near_left)]
+    # a steady nearest hand is measured once and chosen; a hand point is never second-guessed
+    Recording.calls, TwoHandsOneUnsteady.measured = [], []
+    monkeypatch.setattr(TwoHandsOneUnsteady, "steady", {"left": True, "right": False})
+    with pytest.raises(NoObjectError, match=r"\(for hand 0, left\)"):
+        perceive(IMAGE, cfg, prompts=near_left)
+    assert TwoHandsOneUnsteady.measured == ["left"]
+    Recording.calls, TwoHandsOneUnsteady.measured = [], []
+    monkeypatch.setattr(TwoHandsOneUnsteady, "steady", {"left": False, "right": True})
+    with pytest.raises(NoObjectError, match=r"nearest the hand point \(hand 0, left\)"):
+        perceive(IMAGE, cfg, prompts=Prompts(hand_point=(45.0, 50.0)))
+    assert TwoHandsOneUnsteady.measured == []

@@ -6,7 +6,8 @@ Steps (each a pluggable backend, chosen by name in :class:`~easyhoi.config.Perce
 2. HOI segmentation: visible hand mask M_h, held-object mask M_o and their confidence. With
    several hands, each is segmented (the others passed to the segmenter when it takes them) and
    the hand whose object has the best confidence is used; a hand that holds no object is noted
-   in the report. Prompts pick the hand (a hand point, or the hand nearest the object prompt)
+   in the report. Prompts pick the hand (a hand point, or the hand nearest the object prompt,
+   passing over a detection the landmark model does not find again: :func:`steady_nearest`)
    and steer the segmenter;
 3. hand removal by inpainting (hand mask dilated);
 4. amodal re-segmentation prompted by points in every part of M_o and a loose box -> M^_o
@@ -168,6 +169,12 @@ def perceive(
     report.hands_found = len(hands)
     if not hands:
         raise NoHandError("no hand found in the photo")
+    known_confidence: dict[int, np.ndarray] = {}
+    if pv.hand is None and not masks_given:
+        hands, known_confidence, dropped = steady_nearest(detector, image, hands, prompts, timed)
+        if dropped is not None:
+            report.hands_found = len(hands)
+            report.notes.append(dropped)
     if masks_given:
         order, report.hand_choice = prompted_hand_order(hands, None)
         seg = Segmentation(pv.hand_mask, pv.object_mask, bool(pv.object_mask.any()))
@@ -210,7 +217,11 @@ def perceive(
     # behind the held object seeds the hand mask over the object)
     kp_confidence = None
     if pv.hand is None and hasattr(detector, "keypoint_confidence"):
-        kp_confidence = timed("keypoint confidence", detector.keypoint_confidence, image, chosen)
+        kp_confidence = known_confidence.get(id(chosen))
+        if kp_confidence is None:
+            kp_confidence = timed(
+                "keypoint confidence", detector.keypoint_confidence, image, chosen
+            )
         look = second_look(detector, image, chosen, kp_confidence, timed)
         if look is not None:
             before = keypoints_confidence(kp_confidence).score
@@ -297,6 +308,49 @@ def nearest_hand(hands: list[HandDetection], point) -> int:
         k = np.asarray(hand.keypoints2d, float).reshape(-1, 2)
         dists.append(np.linalg.norm(k - p, axis=1).min() if len(k) else np.inf)
     return int(np.argmin(dists))
+
+
+def steady_nearest(
+    detector, image: np.ndarray, hands: list[HandDetection], prompts: Prompts | None, timed
+) -> tuple[list[HandDetection], dict[int, np.ndarray], str | None]:
+    """The hands an object prompt chooses among, the keypoint confidences measured on the way
+    (by ``id`` of the detection) and a note when a detection was passed over.
+
+    An object prompt picks the hand nearest to it (:func:`prompted_hand_order`), which is blind
+    to what the detection is. A skeleton the landmark model does not find again in slightly
+    moved crops of its own region (:meth:`keypoint_confidence` is None: a hand in fewer than
+    half of them) is not a steady reading of a hand: a real hand is found again when the crop
+    moves by a few per cent, while a skeleton fitted to a pattern beside the hand (a printed
+    box, a sleeve's fold) comes and goes. When the nearest detection is such a skeleton and the
+    next nearest is found again, the prompt's hand is chosen among the others. Only with an
+    object prompt and no hand point, and with at least two hands; an only hand is kept
+    whatever its confidence. The confidence of the nearest hand, which the chain needs for the
+    chosen hand anyway, is measured once.
+    """
+    keep: tuple = (hands, {}, None)
+    if (
+        prompts is None
+        or prompts.hand_point is not None
+        or not prompts.has_object_prompt
+        or len(hands) < 2
+        or not hasattr(detector, "keypoint_confidence")
+    ):
+        return keep
+    order, _ = prompted_hand_order(hands, prompts)
+    i = order[0]
+    conf = timed("keypoint confidence", detector.keypoint_confidence, image, hands[i])
+    if conf is not None:
+        return hands, {id(hands[i]): conf}, None
+    rest = [h for j, h in enumerate(hands) if j != i]
+    j = prompted_hand_order(rest, prompts)[0][0]
+    other = timed("keypoint confidence", detector.keypoint_confidence, image, rest[j])
+    if other is None:
+        return keep
+    note = (
+        f"a {hands[i].side} hand skeleton nearest to the object prompt was set aside: the "
+        "detector does not find it again in slightly moved crops (not a steady hand)"
+    )
+    return rest, {id(rest[j]): other}, note
 
 
 def prompted_hand_order(
