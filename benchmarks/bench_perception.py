@@ -335,15 +335,25 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool, choices: bool = F
     if with_point and present and hands:
         p = Prompts(object_points=(tuple(float(v) for v in ref["point"]),))
         t1 = time.perf_counter()
-        _, sp, _, _ = segment_hands(rgb, hands, segmenter, prompts=p)
+        _, sp, _, _ = segment_hands(rgb, prompt_hands(detector, rgb, hands, p), segmenter,
+                                    prompts=p)  # fmt: skip
         row["seconds_point"] = time.perf_counter() - t1
         row["iou_point"] = iou(sp.object_mask if sp is not None else None, ref["object"])
         row["low_point"] = object_low(sp)
-        row["iou_box"], row["low_box"] = box_run(rgb, hands, segmenter, ref["object"])
+        row["iou_box"], row["low_box"] = box_run(rgb, hands, detector, segmenter, ref["object"])
     return row
 
 
-def box_run(rgb, hands, segmenter, ref_obj) -> tuple[float, bool]:
+def prompt_hands(detector, rgb, hands, prompts) -> list:
+    """The detections the product chooses the prompt's hand among
+    (:func:`easyhoi.perception.chain.steady_nearest`: a skeleton the detector does not find
+    again is passed over)."""
+    from easyhoi.perception.chain import steady_nearest
+
+    return steady_nearest(detector, rgb, hands, prompts, lambda _n, fn, *a, **kw: fn(*a, **kw))[0]
+
+
+def box_run(rgb, hands, detector, segmenter, ref_obj) -> tuple[float, bool]:
     """(object IoU with the reference, object confidence low) when the object is prompted by
     the box a user draws round it (``tests/perception_refs.object_box``)."""
     from easyhoi.perception.chain import segment_hands
@@ -352,8 +362,8 @@ def box_run(rgb, hands, segmenter, ref_obj) -> tuple[float, bool]:
     sys.path.insert(0, str(ROOT))
     from tests.perception_refs import object_box
 
-    box = object_box(ref_obj, BOX_GROW)
-    _, sb, _, _ = segment_hands(rgb, hands, segmenter, prompts=Prompts(object_box=box))
+    pb = Prompts(object_box=object_box(ref_obj, BOX_GROW))
+    _, sb, _, _ = segment_hands(rgb, prompt_hands(detector, rgb, hands, pb), segmenter, prompts=pb)
     return iou(sb.object_mask if sb is not None else None, ref_obj), object_low(sb)
 
 
@@ -384,11 +394,12 @@ def run_click(rgb, ref, detector, segmenter, choices: bool = False) -> dict:
     from easyhoi.perception.chain import segment_hands
     from easyhoi.perception.prompts import Prompts
 
-    hands = detector.detect(rgb)
-    row = {"hand": bool(hands), "present": ref["object"] is not None}
-    if row["present"] and hands:
+    all_hands = detector.detect(rgb)
+    row = {"hand": bool(all_hands), "present": ref["object"] is not None}
+    if row["present"] and all_hands:
         p = Prompts(object_points=(tuple(float(v) for v in ref["point"]),))
         t0, c0 = time.perf_counter(), time.process_time()
+        hands = prompt_hands(detector, rgb, all_hands, p)  # what every point run chooses among
         _, sp, _, _ = segment_hands(rgb, hands, segmenter, prompts=p)
         row["seconds_point"] = time.perf_counter() - t0
         row["cpu_seconds_point"] = time.process_time() - c0
@@ -402,7 +413,8 @@ def run_click(rgb, ref, detector, segmenter, choices: bool = False) -> dict:
                     .object_mask, ref["object"])
                 for k in range(2, len(sp.candidates) + 1)
             ]  # fmt: skip
-        row["iou_box"], row["low_box"] = box_run(rgb, hands, segmenter, ref["object"])
+        row["iou_box"], row["low_box"] = box_run(rgb, all_hands, detector, segmenter,
+                                                 ref["object"])  # fmt: skip
         sys.path.insert(0, str(ROOT))
         from tests.perception_refs import background_point, second_point
 
