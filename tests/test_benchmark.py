@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from easyhoi.config import get_preset
+from easyhoi.structures import Camera
 from easyhoi.synth.benchmark import (
     LOSS_ABLATIONS,
     BenchmarkSettings,
@@ -49,6 +50,29 @@ def test_gt_hand_maps_to_zero_error():
     e2 = evaluate_hand(_truth(scene, inp, fast), params, m * 1.01, cam, sd_steps=5)
     assert e2["mpjpe_ra_cm"] < 1e-6 and 0.01 < e2["mpjpe_world_cm"] < 3.0
     assert abs(e2["scale_err_pct"] - 1.0) < 1e-6
+    # the GT camera's own image down is the GT gravity: the same simulation
+    assert e["gravity_angle_deg"] < 1e-5 and e["sd_own_cm"] == e["sd_cm"]
+
+
+def test_own_camera_gravity_is_the_cameras_image_down():
+    """``sd_own_cm`` simulates with +y of the hand's own camera in the object frame: a camera
+    turned by 50 degrees about the object's z axis parts it from the GT gravity by the angle
+    between the two directions, computed here directly."""
+    torch.set_num_threads(1)
+    scene = make_scene(3, "box", "power", image_size=64, photo=False)
+    inp = scene.to_hoi_input("hamer", seed=3)
+    truth = _truth(scene, inp, get_preset("fast").optim)
+    params, m, cam = gt_hand_state(scene, inp)
+    t = np.radians(50.0)
+    Rz = torch.tensor([[np.cos(t), -np.sin(t), 0.0], [np.sin(t), np.cos(t), 0.0], [0, 0, 1.0]],
+                      dtype=cam.R.dtype)  # fmt: skip
+    turned = Camera(cam.K, cam.R @ Rz, cam.t, cam.width, cam.height)
+    e = evaluate_hand(truth, params, m, turned, sd_steps=5, cone=False)
+    down = (cam.R @ Rz).double().numpy().T @ np.array([0.0, 1.0, 0.0])
+    g = np.asarray(truth.gravity_obj, float)
+    naive = np.degrees(np.arccos(down @ g / np.linalg.norm(down) / np.linalg.norm(g)))
+    assert e["gravity_angle_deg"] == pytest.approx(naive, abs=1e-6) and naive > 1.0
+    assert 0 <= e["sd_own_cm"] < 50
 
 
 @pytest.fixture(scope="module")
@@ -201,7 +225,8 @@ def test_goals_and_hand_accuracy_table_against_naive_ratios():
     from easyhoi.synth.tables import goals, hand_accuracy_table
 
     def ev(sd, iv, mp, kp):
-        return {"sd_cm": sd, "iv_cm3": iv, "iv_obman_cm3": iv, "mpjpe_ra_cm": mp, "kp2d_px": kp}
+        return {"sd_cm": sd, "iv_cm3": iv, "iv_obman_cm3": iv, "mpjpe_ra_cm": mp, "kp2d_px": kp,
+                "sd_own_cm": sd / 2 + 1.0}  # fmt: skip
 
     def scene(k):
         stages = {
@@ -220,6 +245,15 @@ def test_goals_and_hand_accuracy_table_against_naive_ratios():
     assert sd["ratio"] == pytest.approx((4 + 8) / (10 + 20)) and sd["met"]
     raise_ = g["S.D. contact / camera <= 1 (no stage raises it)"]
     assert raise_["ratio"] == pytest.approx(27 / 24) and not raise_["met"]
+    own = g["S.D. own camera: full / no optimization <= 0.55"]
+    assert own["ratio"] == pytest.approx((3 + 5) / (6 + 11)) and own["met"]
+    own_raise = g["S.D. own camera: contact / camera <= 1"]
+    assert own_raise["ratio"] == pytest.approx((5.5 + 10) / (5 + 9)) and not own_raise["met"]
+    # reports written before the column have no own-camera goals
+    for sc in report["scenes"]:
+        for st in sc["stages"].values():
+            del st["sd_own_cm"]
+    assert not any(x["goal"].startswith("S.D. own camera") for x in goals(report))
     iv = g["I.V. (solid) refinement / contact alignment <= 0.45"]
     assert iv["ratio"] == pytest.approx(0.4) and iv["met"]
     mp = g["MPJPE after refinement / estimator's <= 1"]

@@ -134,6 +134,11 @@ def evaluate_hand(
     * ``mpjpe_world_cm`` / ``mpvpe_world_cm``: world (object) frame after the GT similarity,
       no alignment (adds the object pose and metric-scale errors, including the rotation
       ambiguity of symmetric objects);
+    * ``sd_own_cm``: S.D. with gravity along image down of ``camera`` itself (+y of the camera
+      frame, as the paper measures a result in its camera frame), and ``gravity_angle_deg``
+      between that direction and the GT camera's down that ``sd_cm`` uses: where the object is
+      symmetric, the object frame's turn about its axis is not in the photo, the camera's
+      rotation in that frame follows it, and the two directions part;
     * ``sd_cm`` (S.D.), ``sd_cone_cm`` (S.D. averaged over gravity tilted by
       :data:`SD_CONE_TILT_DEG` at :data:`SD_CONE_AZIMUTHS` azimuths and the untilted one:
       :func:`easyhoi.metrics.cone_displacement`, lower variance), ``iv_cm3`` (solid, 5 mm
@@ -176,9 +181,13 @@ def evaluate_hand(
     sd_cone, sd_per = metrics.cone_displacement(
         hand, obj, truth.gravity_obj, SD_CONE_TILT_DEG, azimuths, steps=sd_steps
     )
+    own_down = R.T @ np.array([0.0, 1.0, 0.0])  # image down of this hand's own camera
+    sd_own = metrics.simulation_displacement(hand, obj, steps=sd_steps, gravity_dir=own_down)
     return {
         **errors,
         "sd_cm": sd_per[0],
+        "sd_own_cm": float(sd_own.displacement),
+        "gravity_angle_deg": _angle_deg(own_down, truth.gravity_obj),
         "sd_cone_cm": sd_cone if cone else None,
         "iv_cm3": metrics.intersection_volume(hand, obj, method="solid"),
         "iv_obman_cm3": metrics.intersection_volume(hand, obj, method="obman"),
@@ -189,6 +198,12 @@ def evaluate_hand(
         "object_iou": object_iou,
         "scale_err_pct": abs(m / truth.metres_per_unit - 1.0) * 100.0,
     }
+
+
+def _angle_deg(a, b) -> float:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    c = float(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)))
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
 def _estimator_hand(truth: _Truth, inp) -> dict:

@@ -30,6 +30,7 @@ STAGE_ROWS = (
 #: (key, header, format, mean ± std?)
 HAND_COLUMNS = (
     ("sd_cm", "S.D. cm", "{:.2f}", True),
+    ("sd_own_cm", "S.D. own camera cm", "{:.2f}", True),
     ("sd_cone_cm", "S.D. cone cm", "{:.2f}", False),
     ("iv_cm3", "I.V. cm3 solid", "{:.2f}", True),
     ("iv_obman_cm3", "I.V. cm3 ObMan", "{:.2f}", False),
@@ -321,6 +322,12 @@ def goals(report: dict) -> list[dict]:
     keys = [k for k, _ in STAGE_ROWS]
     for prev, cur in zip(keys, keys[1:], strict=False):
         ratio_goal(f"S.D. {cur} / {prev} <= 1 (no stage raises it)", sd[cur], sd[prev], 1.0, "cm")
+    own = {k: _stage_values(report, k, "sd_own_cm") for k, _ in STAGE_ROWS}
+    if all(len(v) == len(sc) for v in own.values()):  # reports from before the column lack it
+        ratio_goal("S.D. own camera: full / no optimization <= 0.55", own["refine"],
+                   own["initial"], 0.55, "cm")  # fmt: skip
+        for prev, cur in zip(keys, keys[1:], strict=False):
+            ratio_goal(f"S.D. own camera: {cur} / {prev} <= 1", own[cur], own[prev], 1.0, "cm")
     for key, label in (("iv_cm3", "solid"), ("iv_obman_cm3", "ObMan")):
         ratio_goal(f"I.V. ({label}) refinement / contact alignment <= 0.45",
                    _stage_values(report, "refine", key), _stage_values(report, "contact", key),
