@@ -75,6 +75,18 @@ def test_compare_gives_the_ratio_of_means_and_a_paired_interval(tmp_path, capsys
     assert [m[1:] for m in moves] == [(4.0, 8.0), (3.0, 6.0)]
     assert compare_synth.main([str(a), str(b)]) == 0
     assert "2.00 (2.00-2.00)" in capsys.readouterr().out
+    # reports without the own-camera S.D. compare without it; with it, it is compared too
+    assert not any(r["metric"] == "S.D. own camera cm" for r in rows)
+    own = []
+    for path, f in ((a, 1.0), (b, 3.0)):
+        data = json.loads(path.read_text())
+        for sc in data["scenes"]:
+            sc["stages"] = {k: dict(v, sd_own_cm=f * v["sd_cm"]) for k, v in sc["stages"].items()}
+        path.write_text(json.dumps(data))
+        own.append(compare_synth.load_scenes([path]))
+    rows = compare_synth.compare(*own)
+    r = next(r for r in rows if r["stage"] == "refine" and r["metric"] == "S.D. own camera cm")
+    assert r["ratio"] == pytest.approx(6.0) and r["base"] == pytest.approx(2.5)
 
 
 def test_compare_interval_against_a_naive_bootstrap(tmp_path):
