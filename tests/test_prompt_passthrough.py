@@ -292,3 +292,14 @@ def test_an_object_prompt_passes_over_a_skeleton_the_detector_does_not_find_agai
     with pytest.raises(NoObjectError, match=r"nearest the hand point \(hand 0, left\)"):
         perceive(IMAGE, cfg, prompts=Prompts(hand_point=(45.0, 50.0)))
     assert TwoHandsOneUnsteady.measured == []
+    # the chain goes on with the hand it keeps: a confidence measured here (None included) is
+    # not measured again for it
+    monkeypatch.setitem(base._REGISTRY["segmenter"], "rated", right_hand_holds())
+    rated = replace(cfg, perception=replace(cfg.perception, segmenter="rated"))
+    monkeypatch.setattr(TwoHandsOneUnsteady, "steady", {"left": False, "right": False})
+    TwoHandsOneUnsteady.measured = []
+    img = np.random.default_rng(0).integers(0, 255, (100, 200, 3), dtype=np.uint8)
+    inp, _ = perceive(img, rated, prompts=Prompts(object_points=((150.0, 50.0),)))
+    assert TwoHandsOneUnsteady.measured[:2] == ["right", "left"]
+    assert TwoHandsOneUnsteady.measured.count("right") == 1
+    assert "keypoints2d_confidence" not in inp.meta

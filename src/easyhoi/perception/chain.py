@@ -217,8 +217,9 @@ def perceive(
     # behind the held object seeds the hand mask over the object)
     kp_confidence = None
     if pv.hand is None and hasattr(detector, "keypoint_confidence"):
-        kp_confidence = known_confidence.get(id(chosen))
-        if kp_confidence is None:
+        if id(chosen) in known_confidence:  # measured when the hand was chosen (None too)
+            kp_confidence = known_confidence[id(chosen)]
+        else:
             kp_confidence = timed(
                 "keypoint confidence", detector.keypoint_confidence, image, chosen
             )
@@ -314,7 +315,8 @@ def steady_nearest(
     detector, image: np.ndarray, hands: list[HandDetection], prompts: Prompts | None, timed
 ) -> tuple[list[HandDetection], dict[int, np.ndarray], str | None]:
     """The hands an object prompt chooses among, the keypoint confidences measured on the way
-    (by ``id`` of the detection) and a note when a detection was passed over.
+    (by ``id`` of the detection, None where it cannot be measured) and a note when a detection
+    was passed over.
 
     An object prompt picks the hand nearest to it (:func:`prompted_hand_order`), which is blind
     to what the detection is. A skeleton the landmark model does not find again in slightly
@@ -324,10 +326,9 @@ def steady_nearest(
     box, a sleeve's fold) comes and goes. When the nearest detection is such a skeleton and the
     next nearest is found again, the prompt's hand is chosen among the others. Only with an
     object prompt and no hand point, and with at least two hands; an only hand is kept
-    whatever its confidence. The confidence of the nearest hand, which the chain needs for the
-    chosen hand anyway, is measured once.
+    whatever its confidence. The chain needs the chosen hand's confidence anyway, so every
+    confidence measured here is returned and none is measured twice.
     """
-    keep: tuple = (hands, {}, None)
     if (
         prompts is None
         or prompts.hand_point is not None
@@ -335,7 +336,7 @@ def steady_nearest(
         or len(hands) < 2
         or not hasattr(detector, "keypoint_confidence")
     ):
-        return keep
+        return hands, {}, None
     order, _ = prompted_hand_order(hands, prompts)
     i = order[0]
     conf = timed("keypoint confidence", detector.keypoint_confidence, image, hands[i])
@@ -344,13 +345,14 @@ def steady_nearest(
     rest = [h for j, h in enumerate(hands) if j != i]
     j = prompted_hand_order(rest, prompts)[0][0]
     other = timed("keypoint confidence", detector.keypoint_confidence, image, rest[j])
+    measured = {id(hands[i]): conf, id(rest[j]): other}
     if other is None:
-        return keep
+        return hands, measured, None
     note = (
         f"a {hands[i].side} hand skeleton nearest to the object prompt was set aside: the "
         "detector does not find it again in slightly moved crops (not a steady hand)"
     )
-    return rest, {id(rest[j]): other}, note
+    return rest, measured, note
 
 
 def prompted_hand_order(

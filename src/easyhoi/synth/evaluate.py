@@ -21,6 +21,9 @@ from easyhoi.structures import HandParams
 #: Gravity cone of ``sd_cone_cm``: tilt from the image-down direction (degrees) and azimuths.
 SD_CONE_TILT_DEG = 10.0
 SD_CONE_AZIMUTHS = 6
+#: Below this angle (degrees) a camera's image down is the GT camera's (the ground-truth rows,
+#: whose camera is the GT one): ``sd_own_cm`` is then the untilted simulation already run.
+SAME_GRAVITY_DEG = 1e-9
 
 __all__ = [
     "evaluate_hand",
@@ -182,12 +185,17 @@ def evaluate_hand(
         hand, obj, truth.gravity_obj, SD_CONE_TILT_DEG, azimuths, steps=sd_steps
     )
     own_down = R.T @ np.array([0.0, 1.0, 0.0])  # image down of this hand's own camera
-    sd_own = metrics.simulation_displacement(hand, obj, steps=sd_steps, gravity_dir=own_down)
+    angle = _angle_deg(own_down, truth.gravity_obj)
+    if angle < SAME_GRAVITY_DEG:  # the GT camera itself: the simulation above
+        sd_own = float(sd_per[0])
+    else:
+        sim = metrics.simulation_displacement(hand, obj, steps=sd_steps, gravity_dir=own_down)
+        sd_own = float(sim.displacement)
     return {
         **errors,
         "sd_cm": sd_per[0],
-        "sd_own_cm": float(sd_own.displacement),
-        "gravity_angle_deg": _angle_deg(own_down, truth.gravity_obj),
+        "sd_own_cm": sd_own,
+        "gravity_angle_deg": angle,
         "sd_cone_cm": sd_cone if cone else None,
         "iv_cm3": metrics.intersection_volume(hand, obj, method="solid"),
         "iv_obman_cm3": metrics.intersection_volume(hand, obj, method="obman"),
