@@ -13,9 +13,10 @@ fitted hand's keypoints, as the chain calls it) twice on the same hand-free phot
   completes a mask (:func:`~easyhoi.perception.amodal.occluder_completion`: its convex hull where
   it meets the hand grown by 2 px), with the reference as the visible mask.
 
-Per photo: the one-point mask's IoU with the reference and the winning family on each outline;
-the summary counts the families and the inflations (the fallback, a pillow of the outline) on
-each. The difference between the two columns is what perception's outline costs the shape step.
+Per photo: the one-point mask's IoU with the reference, the winning family on each outline and
+where its thickness along the view came from (the hand's grip gap or pinch, or none); the summary
+counts the families, the inflations (the fallback, a pillow of the outline) and the thickness
+cues on each. The difference between the two columns is what perception's outline costs the shape step.
 A picture (``--png``, next to the JSON by default) shows the photos whose two families differ:
 the photo with both outlines, then each mesh seen from the photo's camera and from its right.
 
@@ -57,6 +58,14 @@ def completed_reference(ref_object: np.ndarray, hand_mask: np.ndarray) -> np.nda
 def shape_family(mesh) -> str:
     """The winning family recorded on an object mesh of the silhouette reconstructor."""
     return str((mesh.metadata.get("easyhoi") or {}).get("method"))
+
+
+def thickness_cue(mesh) -> str | None:
+    """Where the object's thickness along the view came from on an object mesh of the
+    silhouette reconstructor: the grip's gap or pinch (``"gap"``, ``"pinch"``), or None when the
+    hand gave none and every family kept its own depth."""
+    shape = (mesh.metadata.get("easyhoi") or {}).get("shape") or {}
+    return shape.get("depth_cue_from")
 
 
 def mesh_views(mesh, size: int = VIEW_PX) -> np.ndarray:
@@ -149,10 +158,12 @@ def run_photo(path: Path, ref: dict, settings, keep: list | None = None) -> dict
 
     m_perceived = mesh(inp.amodal_mask, inp.object_mask)
     row["perception"] = shape_family(m_perceived)
+    row["cue_perception"] = thickness_cue(m_perceived)
     row["same"] = row["perception"] == (inp.meta.get("object_shape") or {}).get("shape")
     drawn = ref["object"]
     m_drawn = mesh(completed_reference(drawn, inp.hand_mask), drawn)
     row["drawn"] = shape_family(m_drawn)
+    row["cue_drawn"] = thickness_cue(m_drawn)
     if keep is not None and row["perception"] != row["drawn"]:
         keep.append((row, outlined_crop(rgb, inp.object_mask, drawn), m_perceived, m_drawn))
     return row
@@ -166,6 +177,9 @@ def summary(rows: list[dict]) -> dict:
         counts = Counter(r[side] for r in ok)
         out[f"{side}_families"] = dict(sorted(counts.items()))
         out[f"{side}_inflation"] = counts.get("inflation", 0)
+        # how often the hand measured the thickness along the view (docs/object_shape.md)
+        cues = Counter(r.get(f"cue_{side}") for r in ok if r.get(f"cue_{side}"))
+        out[f"{side}_thickness_cue"] = dict(sorted(cues.items()))
     out["differ"] = sum(r["perception"] != r["drawn"] for r in ok)
     out["chain_family_reproduced"] = sum(bool(r["same"]) for r in ok)
     masks = [r["mask_iou"] for r in ok]

@@ -40,9 +40,9 @@ def test_summary_counts_families_inflations_and_differences():
     bs = _script()
     rows = [
         {"photo": "a", "mask_iou": 0.9, "perception": "inflation", "drawn": "revolution",
-         "same": True},
+         "same": True, "cue_perception": None, "cue_drawn": "gap"},
         {"photo": "b", "mask_iou": 0.4, "perception": "inflation", "drawn": "inflation",
-         "same": True},
+         "same": True, "cue_perception": "pinch", "cue_drawn": "gap"},
         {"photo": "c", "mask_iou": 0.7, "perception": "cuboid", "drawn": "cuboid", "same": False},
         {"photo": "d", "error": "NoHandError: no hand"},
     ]  # fmt: skip
@@ -53,6 +53,19 @@ def test_summary_counts_families_inflations_and_differences():
     assert s["perception_inflation"] == 2 and s["drawn_inflation"] == 1
     assert s["differ"] == 1 and s["chain_family_reproduced"] == 2
     assert s["mask_iou_ge_0.5"] == pytest.approx(2 / 3)
+    # the thickness cue counted by source, rows without one (or older rows) left out
+    assert s["perception_thickness_cue"] == {"pinch": 1}
+    assert s["drawn_thickness_cue"] == {"gap": 2}
+
+
+def test_thickness_cue_reads_the_source_recorded_on_the_mesh():
+    bs = _script()
+    mesh = trimesh.creation.box()
+    mesh.metadata["easyhoi"] = {"method": "slab", "shape": {"depth_cue_from": "pinch"}}
+    assert bs.thickness_cue(mesh) == "pinch"
+    mesh.metadata["easyhoi"] = {"method": "inflation", "shape": {"depth_cue_from": None}}
+    assert bs.thickness_cue(mesh) is None
+    assert bs.thickness_cue(trimesh.creation.box()) is None  # a mesh of another backend
 
 
 def test_mesh_views_show_a_flat_box_wide_from_the_front_and_thin_from_the_right():
