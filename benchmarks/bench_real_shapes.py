@@ -16,7 +16,8 @@ fitted hand's keypoints, as the chain calls it) twice on the same hand-free phot
 Per photo: the one-point mask's IoU with the reference, the winning family on each outline and
 where its thickness along the view came from (the hand's grip gap or pinch, or none); the summary
 counts the families, the inflations (the fallback, a pillow of the outline) and the thickness
-cues on each. The difference between the two columns is what perception's outline costs the shape step.
+cues on each. The difference between the two columns is what perception's outline costs the
+shape step.
 A picture (``--png``, next to the JSON by default) shows the photos whose two families differ:
 the photo with both outlines, then each mesh seen from the photo's camera and from its right.
 
