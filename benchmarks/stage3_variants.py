@@ -31,17 +31,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from compare_synth import METRICS  # noqa: E402  (key, label) read per hand
 from preset_overrides import fast_overrides  # noqa: E402
 
-#: (key of evaluate_hand, label) read per hand.
-METRICS = (
-    ("sd_cm", "S.D. cm"),
-    ("sd_own_cm", "S.D. own camera cm"),
-    ("iv_cm3", "I.V. cm3 solid"),
-    ("iv_obman_cm3", "I.V. cm3 ObMan"),
-    ("mpjpe_ra_cm", "MPJPE cm"),
-    ("kp2d_px", "2D kp px"),
-)
 #: The name of the preset's own stage 3 among the rows' hands.
 PRESET = "preset"
 #: The prefix of the settings a variant may change (stage 3's).
