@@ -2,9 +2,9 @@
 
 A whole ``easyhoi bench`` run per setting repeats stages 1 and 2, which a refinement setting does
 not change. This script runs the fast preset once per scene (the benchmark's scenes:
-``--seed``, ``--scenes``, the default perturbation), then re-runs stage 3 from that run's
-contact snapshot with the preset's own refinement settings and with each ``--variant``, and
-measures every resulting hand against the truth as the benchmark does (untilted gravity only:
+``--seed``, ``--scenes``, the default perturbation), whose own stage 3 is the preset's, then
+re-runs stage 3 from that run's contact snapshot with each ``--variant``, and measures every
+resulting hand against the truth as the benchmark does (untilted gravity only:
 S.D. with the GT camera's down and with the contact snapshot's own, I.V. both ways, MPJPE, 2D
 keypoints). The contact snapshot and the ground-truth hand are measured too.
 
@@ -58,9 +58,19 @@ def parse_variants(ap: argparse.ArgumentParser, groups: list[list[str]]) -> dict
     return out
 
 
-def run_scene(spec, variants: dict[str, dict], settings) -> dict:
-    """One scene: the fast run, then stage 3 from its contact snapshot per setting."""
+def variant_configs(variants: dict[str, dict]) -> dict:
+    """{NAME: the fast preset's optimizer config with NAME's overrides}, built once."""
     from easyhoi.config import get_preset, with_overrides
+
+    return {name: with_overrides(get_preset("fast"), ov).optim for name, ov in variants.items()}
+
+
+def run_scene(spec, configs: dict, settings) -> dict:
+    """One scene: the fast run, then stage 3 from its contact snapshot per variant config. The
+    preset's own stage 3 is the run's (``refine_from_contact`` with the preset's config
+    reproduces it exactly, ``tests/test_benchmark.py``), read with the contact snapshot's camera
+    as the variants are."""
+    from easyhoi.config import get_preset
     from easyhoi.hand import load_hand_model
     from easyhoi.optim.run import optimize
     from easyhoi.optim.state import Scene as OptScene
@@ -85,8 +95,8 @@ def run_scene(spec, variants: dict[str, dict], settings) -> dict:
     row = {"seed": seed, "kind": kind, "grasp": grasp}
     row["contact"] = measured(contact.hand_params, contact.metric_scale, contact.camera)
     row["gt"] = measured(*gt_hand_state(scene, inp))
-    for name, overrides in {PRESET: {}, **variants}.items():
-        cfg = with_overrides(get_preset("fast"), overrides).optim if overrides else fast
+    row[PRESET] = measured(res.hand_params, res.metric_scale, contact.camera)
+    for name, cfg in configs.items():
         params, m = refine_from_contact(inp, res, cfg, opt_scene)
         row[name] = measured(params, m, contact.camera)
     row["seconds"] = time.perf_counter() - t0
@@ -137,12 +147,13 @@ def main(argv=None) -> int:
     if args.scenes < 1:
         ap.error("--scenes must be at least 1")
     variants = parse_variants(ap, args.variant)
+    configs = variant_configs(variants)
     settings = BenchmarkSettings(scenes=args.scenes, seed=args.seed)
     rows = []
     sink = args.out.open("w") if args.out else None
     try:
         for spec in scene_specs(args.scenes, args.seed):
-            rows.append(run_scene(spec, variants, settings))
+            rows.append(run_scene(spec, configs, settings))
             if sink:
                 sink.write(json.dumps(rows[-1]) + "\n")
                 sink.flush()
