@@ -7,6 +7,11 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 PIP := $(BIN)/python -m pip
 PYTEST_ARGS ?=
+# The suite runs in two worker processes (pytest-xdist), each module's tests in one worker so
+# that its module-scoped fixtures are built once: on the 2-core development machine 8.8 min
+# against 16.3 min in one process. PYTEST_WORKERS=0 runs it in this process.
+PYTEST_WORKERS ?= 2
+XDIST = $(if $(filter 0,$(PYTEST_WORKERS)),,-n $(PYTEST_WORKERS) --dist loadscope)
 
 .PHONY: demo test test-fast lint bench venv clean
 
@@ -32,10 +37,10 @@ demo: $(STAMP) $(AOT)
 	$(BIN)/easyhoi example --seed 4 --out outputs/demo
 
 test: $(STAMP) $(AOT)
-	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -q $(XDIST) $(PYTEST_ARGS)
 
 test-fast: $(STAMP) $(AOT)
-	$(BIN)/python -m pytest -q -m "not slow" $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -q -m "not slow" $(XDIST) $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks scripts
