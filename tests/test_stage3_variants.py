@@ -51,19 +51,19 @@ def test_a_bad_variant_is_an_argument_error(groups, capsys):
     assert "stage3_variants: error:" in capsys.readouterr().err
 
 
-def _rows(rng, n=12):
+def _rows(rng, metrics, n=12):
     rows = []
     for i in range(n):
         row = {"seed": i, "kind": "box", "grasp": "power"}
         for name, scale in (("contact", 2.0), ("preset", 1.0), ("free", 0.8), ("gt", 0.5)):
-            row[name] = {k: float(scale * (1 + rng.random())) for k, _ in _script().METRICS}
+            row[name] = {k: float(scale * (1 + rng.random())) for k, _ in metrics}
         rows.append(row)
     return rows
 
 
 def test_summary_means_and_paired_ratios_match_a_naive_computation():
     sv = _script()
-    rows = _rows(np.random.default_rng(3))
+    rows = _rows(np.random.default_rng(3), sv.METRICS)
     recs = sv.summary(rows, ["free"])
     assert [r["hand"] for r in recs[:: len(sv.METRICS)]] == ["contact", "preset", "free", "gt"]
     for r in recs:
