@@ -230,6 +230,28 @@ def test_object_confidence_reads_the_cues():
     assert none.score == 0.0 and none.low
 
 
+def test_the_margin_reason_says_which_region_has_more_evidence():
+    """The ranking may choose a region with less held-object evidence than the runner-up: the
+    reason then says the other region looks more like a held object, not "almost as likely"."""
+    img = np.zeros((8, 8, 3), np.uint8)
+    img[:, 4:] = (200, 40, 40)  # two base segments: two regions to compare
+    props = propose(img, img.astype(float), np.zeros((8, 8), bool), 100, 1)
+    assert len(props.regions) >= 2
+    cues = np.zeros((len(props.regions), len(ho.CUES)))
+    cues[:, ho.CUES.index("area")] = 0.5
+    scores = np.zeros(len(props.regions))
+    evidence = np.full(len(props.regions), 4.0)
+    evidence[0] = 3.9
+    hyp = ho.Hypotheses(props, cues, scores, evidence)
+    below = object_confidence(hyp, 0, 1, True, False, 0.0)
+    assert "another region looks more like a held object (score margin -0.10)" in below.reasons
+    assert not any("almost as likely" in r for r in below.reasons)
+    evidence[0] = 5.0
+    close = object_confidence(ho.Hypotheses(props, cues, scores, evidence), 0, 1, True, False, 0.0)
+    assert "another region is almost as likely (score margin 1.00)" in close.reasons
+    assert close.score > below.score
+
+
 def test_a_single_clicks_close_runner_up_makes_the_prompted_confidence_low():
     props = propose(
         np.zeros((8, 8, 3), np.uint8), np.zeros((8, 8, 3)), np.zeros((8, 8), bool), 100, 1

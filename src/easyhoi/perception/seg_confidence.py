@@ -152,7 +152,10 @@ def object_confidence(
     margin = s - hyp.strength(runner) if runner is not None else 3.0
     c = CALIBRATION
     z = c["A"] * (s - c["S0"]) + c["B"] * (min(margin, 3.0) - c["M0"])
-    if margin < c["M0"]:
+    if margin < 0:
+        # the ranking chose this region, but another one has more held-object evidence
+        reasons.append(f"another region looks more like a held object (score margin {margin:.2f})")
+    elif margin < c["M0"]:
         reasons.append(f"another region is almost as likely (score margin {margin:.2f})")
     if s < c["S0"]:
         reasons.append(f"weak held-object evidence (score {s:.2f})")
