@@ -42,8 +42,8 @@ def _add_object_shape_option(p) -> None:
 
     p.add_argument("--object-shape", default=None, choices=("auto", *OBJECT_SHAPES),
                    help="the object's shape family when you know its kind (a cup: revolution, "
-                   "a phone: cuboid or slab, a pen: tube); default auto, the best fit of all "
-                   "(perception.object_shape)")  # fmt: skip
+                   "a mug: handled, a phone: cuboid or slab, a pen: tube); default auto, the best "
+                   "fit of all (perception.object_shape)")  # fmt: skip
 
 
 _OUT_HELP = (
