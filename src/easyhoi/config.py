@@ -454,7 +454,7 @@ class PerceptionConfig:
     object_shape: str = "auto"
     """Shape family of the "silhouette" object backend: "auto" fits every family and keeps the
     best; a family name (:data:`OBJECT_SHAPES`) fits that one alone, for a user who knows the
-    object's kind (a cup is a "revolution", a phone a "cuboid" or a "slab")."""
+    object's kind (a cup is a "revolution", a mug "handled", a phone a "cuboid" or a "slab")."""
 
     def __post_init__(self):
         if self.object_shape not in ("auto", *OBJECT_SHAPES):
