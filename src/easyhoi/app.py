@@ -219,7 +219,7 @@ def build_app(
                 shape_box = gr.Dropdown(
                     choices=["auto", *OBJECT_SHAPES], value="auto", elem_id="object_shape",
                     label="Object shape (auto: the best fit; or the family you know: a cup is a "
-                    "revolution, a mug handled, a phone a cuboid or a slab, a pen a tube)",
+                    "revolution, a phone a cuboid or a slab, a pen a tube)",
                 )  # fmt: skip
                 run = gr.Button("Run", variant="primary", elem_id="run")
                 error = gr.Markdown("", visible=False, elem_id="error")
