@@ -246,8 +246,9 @@ def test_the_margin_reason_says_which_region_has_more_evidence():
     below = object_confidence(hyp, 0, 1, True, False, 0.0)
     assert "another region looks more like a held object (score margin -0.10)" in below.reasons
     assert not any("almost as likely" in r for r in below.reasons)
-    evidence[0] = 5.0
-    close = object_confidence(ho.Hypotheses(props, cues, scores, evidence), 0, 1, True, False, 0.0)
+    clear = evidence.copy()
+    clear[0] = 5.0
+    close = object_confidence(ho.Hypotheses(props, cues, scores, clear), 0, 1, True, False, 0.0)
     assert "another region is almost as likely (score margin 1.00)" in close.reasons
     assert close.score > below.score
 
