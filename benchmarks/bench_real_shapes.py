@@ -17,7 +17,11 @@ Per photo: the one-point mask's IoU with the reference, the winning family on ea
 where its thickness along the view came from (the hand's grip gap or pinch, or none); the summary
 counts the families, the inflations (the fallback, a pillow of the outline) and the thickness
 cues on each. The difference between the two columns is what perception's outline costs the
-shape step.
+shape step. Each reference object's name gives its kind, and the kinds that one family suits
+(:data:`KIND_FAMILIES`: a cup, a can, a bottle or a pen is a solid of revolution or a tube, a
+phone, a book or a box a cuboid or a slab) score the winner on each outline (``kind_right`` of
+``kind_scored``); each family's score and its parts are kept per row (``scores_perception``,
+``scores_drawn``) so that a selection rule can be re-scored offline.
 A picture (``--png``, next to the JSON by default) shows the photos whose two families differ:
 the photo with both outlines, then each mesh seen from the photo's camera and from its right.
 
@@ -47,6 +51,22 @@ MARGIN_PX = 2.0
 PERCEPTION_RGB, DRAWN_RGB = (230, 60, 40), (40, 200, 80)
 #: Side of each rendered view of a mesh in the picture, pixels.
 VIEW_PX = 160
+#: Families that can be right for a kind of object: a cup, a can, a bottle, a bowl or a pen
+#: is a solid of revolution (a long one a tube, a cup or a jug may have a handle); a phone, a
+#: book, a box, a board or a sheet is a box or a slab; a ball is round every way.
+ROUND = ("revolution", "tube", "handled")
+FLAT = ("cuboid", "slab")
+BALL = ("superquadric", "revolution")
+#: The reference objects' names (``tests/data/perception_refs``) with a family that suits them;
+#: objects of no one family (a trumpet, shears, a game controller) are not scored.
+KIND_FAMILIES = {
+    **dict.fromkeys(("paper cup", "reusable cup", "can", "spray bottle", "bottle", "pen",
+                     "whisk", "microphone", "stone bowl", "marker", "spray can"), ROUND),
+    **dict.fromkeys(("toy airplane", "phone", "book", "picture board", "knife",
+                     "toy brick assembly", "candy strips", "board game", "card", "box",
+                     "paper sheet"), FLAT),
+    "cake pop": BALL,
+}  # fmt: skip
 
 
 def completed_reference(ref_object: np.ndarray, hand_mask: np.ndarray) -> np.ndarray:
@@ -59,6 +79,11 @@ def completed_reference(ref_object: np.ndarray, hand_mask: np.ndarray) -> np.nda
 def shape_family(mesh) -> str:
     """The winning family recorded on an object mesh of the silhouette reconstructor."""
     return str((mesh.metadata.get("easyhoi") or {}).get("method"))
+
+
+def shape_scores(mesh) -> dict:
+    """Each family's score and its parts as the step recorded them on an object mesh."""
+    return ((mesh.metadata.get("easyhoi") or {}).get("shape") or {}).get("scores") or {}
 
 
 def thickness_cue(mesh) -> str | None:
@@ -141,7 +166,7 @@ def run_photo(path: Path, ref: dict, settings, keep: list | None = None) -> dict
 
     rgb = load_image(path).rgb
     ref = fit_to(ref, rgb.shape[:2])
-    row = {"photo": path.name}
+    row = {"photo": path.name, "kind": ref["kind"]}
     try:
         prompts = Prompts(object_points=(tuple(float(v) for v in ref["point"]),))
         inp, _ = perceive(rgb, settings, prompts=prompts)
@@ -159,15 +184,25 @@ def run_photo(path: Path, ref: dict, settings, keep: list | None = None) -> dict
 
     m_perceived = mesh(inp.amodal_mask, inp.object_mask)
     row["perception"] = shape_family(m_perceived)
+    row["scores_perception"] = shape_scores(m_perceived)
     row["cue_perception"] = thickness_cue(m_perceived)
     row["same"] = row["perception"] == (inp.meta.get("object_shape") or {}).get("shape")
     drawn = ref["object"]
     m_drawn = mesh(completed_reference(drawn, inp.hand_mask), drawn)
     row["drawn"] = shape_family(m_drawn)
+    row["scores_drawn"] = shape_scores(m_drawn)
     row["cue_drawn"] = thickness_cue(m_drawn)
     if keep is not None and row["perception"] != row["drawn"]:
         keep.append((row, outlined_crop(rgb, inp.object_mask, drawn), m_perceived, m_drawn))
     return row
+
+
+def held_kind(path: Path) -> str | None:
+    """The name of the first held object of a reference file (``tests/perception_refs.py``)."""
+    from tests import perception_refs as pr  # importable once bench_perception.reference ran
+
+    held = [o.name for o in pr.load_ref(path).objects if o.held_by]
+    return held[0] if held else None
 
 
 def summary(rows: list[dict]) -> dict:
@@ -182,6 +217,10 @@ def summary(rows: list[dict]) -> dict:
         cues = Counter(r.get(f"cue_{side}") for r in ok if r.get(f"cue_{side}"))
         out[f"{side}_thickness_cue"] = dict(sorted(cues.items()))
     out["differ"] = sum(r["perception"] != r["drawn"] for r in ok)
+    kinds = [r for r in ok if r.get("kind") in KIND_FAMILIES]
+    for side in ("perception", "drawn"):  # the family suits the object's kind
+        out[f"{side}_kind_right"] = sum(r[side] in KIND_FAMILIES[r["kind"]] for r in kinds)
+    out["kind_scored"] = len(kinds)
     out["chain_family_reproduced"] = sum(bool(r["same"]) for r in ok)
     masks = [r["mask_iou"] for r in ok]
     out["mask_iou_ge_0.5"] = float(np.mean([m >= 0.5 for m in masks])) if masks else 0.0
@@ -202,7 +241,7 @@ def main(argv=None) -> int:
     for f in sorted((ROOT / "tests" / "data" / "perception_refs").glob("*.json")):
         if args.only not in f.stem:
             continue
-        ref = reference(f)
+        ref = {**reference(f), "kind": held_kind(f)}
         if ref["object"] is None or ref["point"] is None:
             continue
         if not (DATA / ref["image"]).is_file():
