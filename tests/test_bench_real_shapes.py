@@ -101,3 +101,39 @@ def test_shape_family_reads_the_reconstructors_record():
     mesh = trimesh.creation.box()
     mesh.metadata["easyhoi"] = {"method": "cuboid", "shape": {"shape": "cuboid"}}
     assert bs.shape_family(mesh) == "cuboid"
+
+
+def test_summary_scores_the_family_against_the_objects_kind():
+    bs = _script()
+    rows = [
+        {"photo": "cup", "kind": "reusable cup", "perception": "inflation", "drawn": "revolution"},
+        {"photo": "phone", "kind": "phone", "perception": "cuboid", "drawn": "revolution"},
+        {"photo": "pen", "kind": "pen", "perception": "tube", "drawn": "tube"},
+        {"photo": "horn", "kind": "trumpet", "perception": "cuboid", "drawn": "inflation"},
+        {"photo": "old", "perception": "slab", "drawn": "slab"},  # a row without a kind
+    ]
+    for r in rows:
+        r.update(mask_iou=0.9, same=True)
+    s = bs.summary(rows)
+    # a trumpet suits no one family and a row without a kind is not scored
+    assert s["kind_scored"] == 3
+    assert s["perception_kind_right"] == 2  # the phone's cuboid and the pen's tube
+    assert s["drawn_kind_right"] == 2  # the cup's and the pen's round families
+    # every reference object's name that is scored names a known family
+    families = {"revolution", "superquadric", "tube", "cuboid", "slab", "inflation", "handled"}
+    assert all(set(v) <= families and "inflation" not in v for v in bs.KIND_FAMILIES.values())
+
+
+def test_held_kind_is_the_name_of_the_first_held_object(tmp_path):
+    import json
+
+    bs = _script()
+    hand = {"side": "right", "holds_object": True, "polygons": [[[0, 0], [5, 0], [5, 5]]]}
+    ref = {"image": "x.png", "width": 10, "height": 10, "note": "", "hands": [hand],
+           "objects": [{"name": "poster", "held_by": [], "visibly_held": False,
+                        "polygons": [[[6, 6], [9, 6], [9, 9]]]},
+                       {"name": "mug", "held_by": [0], "visibly_held": True,
+                        "polygons": [[[1, 1], [4, 1], [4, 4]]]}]}  # fmt: skip
+    path = tmp_path / "x__y.json"
+    path.write_text(json.dumps(ref))
+    assert bs.held_kind(path) == "mug"
