@@ -199,7 +199,9 @@ def run_photo(path: Path, ref: dict, settings, keep: list | None = None) -> dict
 
 def held_kind(path: Path) -> str | None:
     """The name of the first held object of a reference file (``tests/perception_refs.py``)."""
-    from tests import perception_refs as pr  # importable once bench_perception.reference ran
+    if str(ROOT) not in sys.path:
+        sys.path.insert(0, str(ROOT))
+    from tests import perception_refs as pr
 
     held = [o.name for o in pr.load_ref(path).objects if o.held_by]
     return held[0] if held else None
