@@ -92,8 +92,9 @@ DATA = ROOT.parent / "shared" / "data"
 
 def reference(path: Path) -> dict:
     """Reference of one photo (``tests/perception_refs.py`` format): image path, one mask per
-    hand, the held-object mask (None: nothing held), whether it is visibly held, and the
-    one-click point (the held-object mask's deepest interior pixel)."""
+    hand, the held-object mask (None: nothing held), whether it is visibly held, the
+    one-click point (the held-object mask's deepest interior pixel) and the name of the first
+    held object (``kind``; None: nothing held)."""
     sys.path.insert(0, str(ROOT))
     from tests import perception_refs as pr
 
@@ -106,6 +107,7 @@ def reference(path: Path) -> dict:
         "object": obj if obj.any() else None,
         "visibly_held": any(o.held_by and o.visibly_held for o in ref.objects),
         "point": pr.object_point(ref),
+        "kind": next((o.name for o in ref.objects if o.held_by), None),
     }
 
 

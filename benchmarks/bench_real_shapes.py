@@ -17,7 +17,8 @@ Per photo: the one-point mask's IoU with the reference, the winning family on ea
 where its thickness along the view came from (the hand's grip gap or pinch, or none); the summary
 counts the families, the inflations (the fallback, a pillow of the outline) and the thickness
 cues on each. The difference between the two columns is what perception's outline costs the
-shape step. Each reference object's name gives its kind, and the kinds that one family suits
+shape step. Each reference's held object's name (``kind`` of
+:func:`bench_perception.reference`) gives its kind, and the kinds that one family suits
 (:data:`KIND_FAMILIES`: a cup, a can, a bottle or a pen is a solid of revolution or a tube, a
 phone, a book or a box a cuboid or a slab) score the winner on each outline (``kind_right`` of
 ``kind_scored``); each family's score and its parts are kept per row (``scores_perception``,
@@ -197,16 +198,6 @@ def run_photo(path: Path, ref: dict, settings, keep: list | None = None) -> dict
     return row
 
 
-def held_kind(path: Path) -> str | None:
-    """The name of the first held object of a reference file (``tests/perception_refs.py``)."""
-    if str(ROOT) not in sys.path:
-        sys.path.insert(0, str(ROOT))
-    from tests import perception_refs as pr
-
-    held = [o.name for o in pr.load_ref(path).objects if o.held_by]
-    return held[0] if held else None
-
-
 def summary(rows: list[dict]) -> dict:
     """Family counts on each outline, the inflations among them, and the photos that differ."""
     ok = [r for r in rows if "error" not in r]
@@ -243,7 +234,7 @@ def main(argv=None) -> int:
     for f in sorted((ROOT / "tests" / "data" / "perception_refs").glob("*.json")):
         if args.only not in f.stem:
             continue
-        ref = {**reference(f), "kind": held_kind(f)}
+        ref = reference(f)
         if ref["object"] is None or ref["point"] is None:
             continue
         if not (DATA / ref["image"]).is_file():
