@@ -105,6 +105,10 @@ def reference(path: Path) -> dict:
         "hand": [pr.rasterize(h.polygons, ref.height, ref.width) for h in ref.hands],
         "holds": [bool(h.holds_object) for h in ref.hands],
         "object": obj if obj.any() else None,
+        # each held object alone: a photo whose hands hold one object each has two
+        "objects": [
+            pr.rasterize(o.polygons, ref.height, ref.width) for o in ref.objects if o.held_by
+        ],
         "visibly_held": any(o.held_by and o.visibly_held for o in ref.objects),
         "point": pr.object_point(ref),
         "kind": next((o.name for o in ref.objects if o.held_by), None),
@@ -128,6 +132,7 @@ def fit_to(ref: dict, shape: tuple[int, int]) -> dict:
         **ref,
         "hand": [fit(h) for h in ref["hand"]],
         "object": fit(ref["object"]),
+        "objects": [fit(m) for m in ref.get("objects", [])],
         "point": pt,
     }
 
@@ -174,6 +179,7 @@ def mirror(rgb: np.ndarray, ref: dict) -> tuple[np.ndarray, dict]:
         **ref,
         "hand": [flip(h) for h in ref["hand"]],
         "object": flip(ref["object"]),
+        "objects": [flip(m) for m in ref.get("objects", [])],
         "point": pt,
     }
     return rgb[:, ::-1].copy(), ref
@@ -198,6 +204,7 @@ def rotate(rgb: np.ndarray, ref: dict, quarter_turns: int) -> tuple[np.ndarray, 
         **ref,
         "hand": [turn(h) for h in ref["hand"]],
         "object": turn(ref["object"]),
+        "objects": [turn(m) for m in ref.get("objects", [])],
         "point": pt,
     }
     return turn(rgb), ref
@@ -226,8 +233,21 @@ def crop_around(rgb: np.ndarray, ref: dict, grow: float) -> tuple[np.ndarray, di
     pt = ref["point"]
     if pt is not None:
         pt = (pt[0] - x0, pt[1] - y0)
-    ref = {**ref, "hand": [cut(m) for m in ref["hand"]], "object": cut(ref["object"]), "point": pt}
+    ref = {**ref, "hand": [cut(m) for m in ref["hand"]], "object": cut(ref["object"]),
+           "objects": [cut(m) for m in ref.get("objects", [])], "point": pt}  # fmt: skip
     return cut(rgb), ref
+
+
+def clicked_object(ref: dict) -> np.ndarray | None:
+    """The held object the reference's point lies on: the whole held-object mask when the
+    hands hold one object, the clicked one alone when they hold one each (a one-object
+    reconstruction of the clicked hand's object cannot reach the union of both)."""
+    objs = ref.get("objects") or []
+    if len(objs) < 2 or ref["point"] is None:
+        return ref["object"]
+    x, y = (int(round(v)) for v in ref["point"])
+    on = [m for m in objs if 0 <= y < m.shape[0] and 0 <= x < m.shape[1] and m[y, x]]
+    return on[0] if on else ref["object"]
 
 
 def iou(a: np.ndarray | None, b: np.ndarray | None) -> float:
@@ -341,6 +361,8 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool, choices: bool = F
                                     prompts=p)  # fmt: skip
         row["seconds_point"] = time.perf_counter() - t1
         row["iou_point"] = iou(sp.object_mask if sp is not None else None, ref["object"])
+        row["iou_point_clicked"] = iou(sp.object_mask if sp is not None else None,
+                                       clicked_object(ref))  # fmt: skip
         row["low_point"] = object_low(sp)
         row["iou_box"], row["low_box"] = box_run(rgb, hands, detector, segmenter, ref["object"])
     return row
@@ -407,6 +429,7 @@ def run_click(rgb, ref, detector, segmenter, choices: bool = False) -> dict:
         row["cpu_seconds_point"] = time.process_time() - c0
         m1 = sp.object_mask if sp is not None else None
         row["iou_point"] = iou(m1, ref["object"])
+        row["iou_point_clicked"] = iou(m1, clicked_object(ref))
         row["low_point"] = object_low(sp)
         row["ceiling_point"] = click_ceiling(rgb, hands, segmenter, p, ref["object"])
         if choices and sp is not None:
@@ -452,6 +475,12 @@ def click_summary(rows: list[dict]) -> dict:
         if pts
         else 0.0,
         "point_mean_iou": float(np.mean([r.get("iou_point", 0.0) for r in pts])) if pts else 0.0,
+        # against the held object the point lies on (differs where each hand holds its own)
+        "point_clicked_object_iou_ge_0.5": float(
+            np.mean([r.get("iou_point_clicked", 0.0) >= 0.5 for r in pts])
+        )
+        if pts
+        else 0.0,
         # the one-point masks with IoU < 0.5 / >= 0.5 whose object confidence is low (warned)
         "point_wrong_flagged_low": _share_low(pts, lambda r: r.get("iou_point", 0.0) < 0.5),
         "point_right_flagged_low": _share_low(pts, lambda r: r.get("iou_point", 0.0) >= 0.5),
@@ -529,6 +558,11 @@ def summary(rows: list[dict]) -> dict:
         "right_flagged_low": float(np.mean([r["low"] for r in right])) if right else 0.0,
         "point_iou_ge_0.5": float(np.mean([r["iou_point"] >= 0.5 for r in pts])) if pts else 0.0,
         "point_mean_iou": float(np.mean([r["iou_point"] for r in pts])) if pts else 0.0,
+        "point_clicked_object_iou_ge_0.5": float(
+            np.mean([r["iou_point_clicked"] >= 0.5 for r in pts])
+        )
+        if pts
+        else 0.0,
         # the one-point masks with IoU < 0.5 / >= 0.5 whose object confidence is low (warned)
         "point_wrong_flagged_low": _share_low(pts, lambda r: r["iou_point"] < 0.5),
         "point_right_flagged_low": _share_low(pts, lambda r: r["iou_point"] >= 0.5),
@@ -701,6 +735,7 @@ def main(argv=None) -> int:
             names.append(name)
             print(
                 f"{name[:44]:44s} {half:5s} pt={row.get('iou_point', float('nan')):.2f} "
+                f"on={row.get('iou_point_clicked', float('nan')):.2f} "
                 f"pt2={row.get('iou_point2', float('nan')):.2f} "
                 f"fix={row.get('iou_fix', float('nan')):.2f}{row.get('fix', '')[:2]} "
                 f"cands={row.get('ceiling_point') or float('nan'):.2f} "

@@ -146,3 +146,30 @@ def test_click_draw_needs_click_depth_and_a_count():
         with pytest.raises(SystemExit) as exc:
             bench.main(argv)
         assert exc.value.code == 2
+
+
+def test_each_held_object_follows_the_photo_and_a_click_is_scored_on_its_own_object():
+    bench = load_script("benchmarks/bench_perception.py")
+    rgb = np.zeros((300, 500, 3), np.uint8)
+    knife, slice_ = np.zeros((300, 500), bool), np.zeros((300, 500), bool)
+    knife[100:110, 20:200] = True  # one object in each hand
+    slice_[200:260, 300:360] = True
+    both = knife | slice_
+    hand = np.zeros((300, 500), bool)
+    hand[90:150, 150:320] = True
+    ref = {"hand": [hand], "holds": [True], "object": both, "objects": [knife, slice_],
+           "point": (330.0, 230.0)}  # fmt: skip
+    # the point lies on the slice: a mask of the slice alone is the clicked object, exactly
+    assert bench.clicked_object(ref) is slice_
+    assert bench.iou(slice_, bench.clicked_object(ref)) == 1.0
+    assert bench.iou(slice_, both) == slice_.sum() / both.sum()  # what the union scores
+    # every transform carries the objects with the point
+    for t_ref in (bench.mirror(rgb, ref)[1], bench.rotate(rgb, ref, 1)[1],
+                  bench.fit_to(ref, (150, 250)), bench.crop_around(rgb, ref, 1.2)[1]):  # fmt: skip
+        on = bench.clicked_object(t_ref)
+        x, y = (int(round(v)) for v in t_ref["point"])
+        assert on[y, x] and on.sum() < t_ref["object"].sum()
+        assert np.array_equal(on | t_ref["objects"][0], t_ref["object"])
+    # one held object, or a point on neither: the whole held-object mask
+    assert bench.clicked_object({**ref, "objects": [both]}) is both
+    assert bench.clicked_object({**ref, "point": (5.0, 5.0)}) is both
