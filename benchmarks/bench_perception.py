@@ -18,7 +18,10 @@ as :func:`easyhoi.perception.chain.segment_hands` does in the product. Reported 
   (what a user who picks the right one from ``masks.png`` gets);
 * ``IoU 1pt``: the same with one object point, the reference mask's deepest interior point
   (maximum of its distance transform, ``tests/perception_refs.object_point``), as a user's
-  single click;
+  single click; ``on`` (in the ``--click-only`` lines; ``point_clicked_object_iou_ge_0.5`` in
+  the summary) scores the same mask against the held object the point lies on alone, which
+  differs from ``IoU 1pt`` where each hand holds an object of its own (the product reconstructs
+  the clicked one);
 * ``IoU box``: the same with an object box (``--object-box``), the reference mask's bounding box
   grown by 5 % of its width and height on every side, as a user's box drawn round the object.
 
