@@ -118,6 +118,19 @@ def reference(path: Path) -> dict:
     }
 
 
+def map_masks(ref: dict, f, point) -> dict:
+    """The reference with ``f`` applied to every mask (each hand, the held-object mask, each
+    held object; ``f`` keeps None as None) and its object point replaced by ``point``: what
+    every photo transform does to the reference."""
+    return {
+        **ref,
+        "hand": [f(h) for h in ref["hand"]],
+        "object": f(ref["object"]),
+        "objects": [f(m) for m in ref.get("objects", [])],
+        "point": point,
+    }
+
+
 def fit_to(ref: dict, shape: tuple[int, int]) -> dict:
     """The reference with its masks resampled to ``shape`` (the photo loader may downscale
     very large photos)."""
@@ -131,13 +144,7 @@ def fit_to(ref: dict, shape: tuple[int, int]) -> dict:
     pt = ref["point"]
     if pt is not None:
         pt = (pt[0] * shape[1] / w0, pt[1] * shape[0] / h0)
-    return {
-        **ref,
-        "hand": [fit(h) for h in ref["hand"]],
-        "object": fit(ref["object"]),
-        "objects": [fit(m) for m in ref.get("objects", [])],
-        "point": pt,
-    }
+    return map_masks(ref, fit, pt)
 
 
 def resample(rgb: np.ndarray, factor: float, max_side: int = 1600) -> np.ndarray:
@@ -178,14 +185,7 @@ def mirror(rgb: np.ndarray, ref: dict) -> tuple[np.ndarray, dict]:
     pt = ref["point"]
     if pt is not None:
         pt = (rgb.shape[1] - 1 - pt[0], pt[1])
-    ref = {
-        **ref,
-        "hand": [flip(h) for h in ref["hand"]],
-        "object": flip(ref["object"]),
-        "objects": [flip(m) for m in ref.get("objects", [])],
-        "point": pt,
-    }
-    return rgb[:, ::-1].copy(), ref
+    return rgb[:, ::-1].copy(), map_masks(ref, flip, pt)
 
 
 def rotate(rgb: np.ndarray, ref: dict, quarter_turns: int) -> tuple[np.ndarray, dict]:
@@ -203,14 +203,7 @@ def rotate(rgb: np.ndarray, ref: dict, quarter_turns: int) -> tuple[np.ndarray, 
         for _ in range(k):  # (x, y) in an (h, w) image -> (y, w - 1 - x) in the (w, h) one
             x, y, h, w = y, w - 1 - x, w, h
         pt = (x, y)
-    ref = {
-        **ref,
-        "hand": [turn(h) for h in ref["hand"]],
-        "object": turn(ref["object"]),
-        "objects": [turn(m) for m in ref.get("objects", [])],
-        "point": pt,
-    }
-    return turn(rgb), ref
+    return turn(rgb), map_masks(ref, turn, pt)
 
 
 def crop_around(rgb: np.ndarray, ref: dict, grow: float) -> tuple[np.ndarray, dict]:
@@ -236,9 +229,7 @@ def crop_around(rgb: np.ndarray, ref: dict, grow: float) -> tuple[np.ndarray, di
     pt = ref["point"]
     if pt is not None:
         pt = (pt[0] - x0, pt[1] - y0)
-    ref = {**ref, "hand": [cut(m) for m in ref["hand"]], "object": cut(ref["object"]),
-           "objects": [cut(m) for m in ref.get("objects", [])], "point": pt}  # fmt: skip
-    return cut(rgb), ref
+    return cut(rgb), map_masks(ref, cut, pt)
 
 
 def clicked_object(ref: dict) -> np.ndarray | None:
@@ -363,9 +354,9 @@ def run_photo(rgb, ref, detector, segmenter, with_point: bool, choices: bool = F
         _, sp, _, _ = segment_hands(rgb, prompt_hands(detector, rgb, hands, p), segmenter,
                                     prompts=p)  # fmt: skip
         row["seconds_point"] = time.perf_counter() - t1
-        row["iou_point"] = iou(sp.object_mask if sp is not None else None, ref["object"])
-        row["iou_point_clicked"] = iou(sp.object_mask if sp is not None else None,
-                                       clicked_object(ref))  # fmt: skip
+        m1 = sp.object_mask if sp is not None else None
+        row["iou_point"] = iou(m1, ref["object"])
+        row["iou_point_clicked"] = iou(m1, clicked_object(ref))
         row["low_point"] = object_low(sp)
         row["iou_box"], row["low_box"] = box_run(rgb, hands, detector, segmenter, ref["object"])
     return row
